@@ -1,0 +1,1 @@
+"""The planar grand-piano action model: kernel, integrators, simulation."""

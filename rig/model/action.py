@@ -1,0 +1,550 @@
+"""The grand-piano action model: rest state, blows, stepping, channels, events.
+
+    model = ActionModel()                                  # rigid base model
+    model = ActionModel(effects=["flexible_shank"])        # plus effects
+    result = model.simulate(profiles.load("profiles/forte.yaml"))
+    result.events["strike"], result.channels["hammer_angle"]
+
+    stepper = model.stepper()                              # for the 500 Hz loop
+    chunk = stepper.advance(0.002, f_start=0.0, f_end=1.5)
+
+Swappable parts are constructor arguments: the parameter set, the effects, the
+integrator. A failed integration does not raise: the result carries
+``status`` and ``message`` (like scipy's ``solve_ivp``).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time as _time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rig import profiles as _profiles
+from rig.model import assembly
+from rig.model import kernel as k
+from rig.model.effects import Build, Effect, make
+from rig.model.integrators import Advance, DormandPrince, Integrator, by_name
+from rig.params import Parameters, load_yaml_file
+
+COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2")
+ANGLE_CHANNELS = {
+    "key_angle": k.QK,
+    "whippen_angle": k.QW,
+    "jack_angle": k.QJ,
+    "repetition_angle": k.QR,
+    "hammer_angle": k.QH,
+}
+CHANNEL_UNITS: dict[str, str] = {
+    "time": "s",
+    "force": "N",
+    **dict.fromkeys(ANGLE_CHANNELS, "rad"),
+    **{n.replace("_angle", "_angular_velocity"): "rad/s" for n in ANGLE_CHANNELS},
+    "hammer_head_velocity": "m/s",
+    "hammer_head_x": "m",
+    "hammer_head_y": "m",
+    "key_dip": "m",
+    "contact_force": "N",
+    "contact_friction": "N",
+    "contact_penetration": "m",
+    "contact_penetration_rate": "m/s",
+    "contact_slip": "m/s",
+    "contact_point_x": "m",
+    "shank_strain": "m/m",
+    "shank_tip_deflection": "m",
+    "key_lift": "m",
+}
+CHANNEL_DOCS: dict[str, str] = {
+    "force": "force pressing the key top, downward",
+    "key_angle": "key, ground -> key frame, counter-clockwise",
+    "whippen_angle": "whippen, ground -> whippen frame",
+    "jack_angle": "jack relative to the whippen",
+    "repetition_angle": "repetition lever relative to the whippen",
+    "hammer_angle": "hammer, ground -> hammer frame",
+    "hammer_head_velocity": "vertical velocity of the striking felt's centre, + toward the string",
+    "hammer_head_x": "ground x of the striking felt's centre",
+    "hammer_head_y": "ground y of the striking felt's centre",
+    "key_dip": "downward travel of the key top (Pk2) from rest",
+    "contact_force": "normal force per contact (columns: contact ids)",
+    "contact_friction": "tangential friction force per contact",
+    "contact_penetration": "penetration per contact, + = touching",
+    "contact_penetration_rate": "rate of penetration per contact, + = approaching",
+    "contact_slip": "tangential slip speed per contact",
+    "contact_point_x": "ground x of each contact's point",
+    "shank_strain": "axial strain at the strain gauge (Eq. 4.1), + = tension",
+    "shank_tip_deflection": "shank tip's transverse deflection in the shank frame",
+    "key_lift": "key pivot's lift off the balance rail (prismatic coordinate)",
+}
+
+# event name -> (contact id, direction), + = contact closes, - = opens
+EVENT_DOCS: dict[str, str] = {
+    "key_starts": "key starts to move (key top travel exceeds the threshold)",
+    "let_off": "jack toe meets the let-off button (contact 8 closes)",
+    "escapement": "jack leaves the knuckle after let-off (contact 7 opens)",
+    "strike": "hammer meets the string (contact 12 closes)",
+    "string_release": "hammer leaves the string (contact 12 opens)",
+    "backcheck_catch": "back check catches the hammer tail (contact 4 closes)",
+    "key_bottom": "key reaches its front felt (contact 2 closes)",
+    "key_release": "key leaves its front felt for good (contact 2 opens for the last time)",
+}
+EVENT_ORDER = tuple(EVENT_DOCS)
+KEY_MOVE_THRESHOLD_M = 2e-5
+HEAD_STRIKE_POINT = "Phh3"
+
+
+@dataclass
+class SimResult:
+    """A simulated (or, with the same layout, measured) blow."""
+
+    time: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    events: dict[str, float]
+    status: int = 0
+    message: str = "ok"
+    stats: dict[str, float] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    contact_ids: tuple[int, ...] = ()
+
+    @property
+    def success(self) -> bool:
+        return self.status == 0
+
+    def contact(self, name: str, cid: int) -> np.ndarray:
+        """Column of a per-contact channel for contact id ``cid``."""
+        return self.channels[name][:, self.contact_ids.index(cid)]
+
+    def at(self, name: str, t: float) -> float:
+        return float(np.interp(t, self.time, self.channels[name]))
+
+    @property
+    def strike_speed(self) -> float:
+        """Hammer-head speed (m/s) just before it meets the string; NaN without a strike."""
+        ts = self.events.get("strike", math.nan)
+        return self.at("hammer_head_velocity", ts) if math.isfinite(ts) else math.nan
+
+    def summary(self) -> dict[str, float]:
+        out = {f"{n}_s": self.events.get(n, math.nan) for n in EVENT_ORDER}
+        out["strike_speed_m_s"] = self.strike_speed
+        ts, tr = self.events.get("strike", math.nan), self.events.get("string_release", math.nan)
+        out["string_contact_s"] = tr - ts
+        return out
+
+
+def _crossings(t: np.ndarray, x: np.ndarray, rising: bool) -> np.ndarray:
+    """Times where x crosses 0 upward (rising) or downward, linearly interpolated."""
+    s = x > 0
+    idx = np.flatnonzero(~s[:-1] & s[1:]) if rising else np.flatnonzero(s[:-1] & ~s[1:])
+    x0, x1 = x[idx], x[idx + 1]
+    return t[idx] + (t[idx + 1] - t[idx]) * (-x0) / (x1 - x0)
+
+
+def _first_after(times: np.ndarray, after: float) -> float:
+    later = times[times > after]
+    return float(later[0]) if later.size else math.nan
+
+
+def contact_indicator(result: SimResult, cid: int, damping: float) -> np.ndarray:
+    """Positive exactly while contact ``cid`` pushes: penetration > 0 and 1 + D rate > 0.
+
+    A felt that is unloaded faster than it recovers stops pushing before its
+    geometric penetration ends (Eq. 3.2 never pulls); the contact has then let go.
+    """
+    pen = result.contact("contact_penetration", cid)
+    if "contact_penetration_rate" not in result.channels or damping <= 0:
+        return pen
+    rate = result.contact("contact_penetration_rate", cid)
+    # both terms in metres: the penetration, and how far it has left to fall at the
+    # current rate before the damping factor would turn the force negative
+    release = (1.0 / damping + rate) * 1e-3
+    return np.minimum(pen, release)
+
+
+def find_events(result: SimResult, threshold_m: float = KEY_MOVE_THRESHOLD_M,
+                damping: Mapping[int, float] | None = None) -> dict[str, float]:
+    """Event times (s) of a blow from its channels; NaN where an event did not happen."""
+    t = result.time
+    ev: dict[str, float] = dict.fromkeys(EVENT_ORDER, math.nan)
+    dip = result.channels["key_dip"]
+    ev["key_starts"] = _first_after(_crossings(t, dip - threshold_m, True), -1.0)
+    damping = damping or {}
+
+    def pen(cid: int) -> np.ndarray:
+        return contact_indicator(result, cid, damping.get(cid, 0.0))
+
+    start = ev["key_starts"] if math.isfinite(ev["key_starts"]) else t[0] - 1.0
+    ev["let_off"] = _first_after(_crossings(t, pen(8), True), start)
+    ev["escapement"] = _first_after(_crossings(t, pen(7), False),
+                                    ev["let_off"] if math.isfinite(ev["let_off"]) else start)
+    ev["strike"] = _first_after(_crossings(t, pen(12), True), start)
+    ev["string_release"] = _first_after(_crossings(t, pen(12), False), ev["strike"]) \
+        if math.isfinite(ev["strike"]) else math.nan
+    ev["backcheck_catch"] = _first_after(_crossings(t, pen(4), True), ev["string_release"]) \
+        if math.isfinite(ev["string_release"]) else math.nan
+    ev["key_bottom"] = _first_after(_crossings(t, pen(2), True), start)
+    leaves = _crossings(t, pen(2), False)
+    leaves = leaves[leaves > ev["key_bottom"]] if math.isfinite(ev["key_bottom"]) else leaves[:0]
+    ev["key_release"] = float(leaves[-1]) if leaves.size else math.nan
+    return ev
+
+
+@dataclass
+class Chunk:
+    """Output samples produced by one ``Stepper.advance`` call."""
+
+    time: np.ndarray
+    states: np.ndarray
+    force: np.ndarray
+    status: int
+    message: str
+
+    def angle(self, name: str) -> np.ndarray:
+        return self.states[:, ANGLE_CHANNELS[name]]
+
+
+class ActionModel:
+    """Base mechanism plus effects, with a swappable integrator."""
+
+    def __init__(self, params: Parameters | None = None,
+                 effects: Sequence[str | Mapping[str, Any] | Effect] = (),
+                 integrator: Integrator | None = None, *, output_rate: float | None = None,
+                 base_dir: Path | None = None) -> None:
+        self.params = params.copy() if params is not None else Parameters.default()
+        self.effects: list[Effect] = [make(e, base_dir) for e in effects]
+        names = [e.name for e in self.effects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"effects: each effect may appear once, got {names}")
+        build = Build(self.params.copy())
+        for effect in self.effects:
+            effect.apply(build)
+        self.build = build
+        self.packed = assembly.pack(build.params, liftoff=build.flags["liftoff"],
+                                    flexible_shank=build.flags["flexible_shank"])
+        for (cid, col), value in build.contact_overrides.items():
+            self.packed.arrays[3][self.packed.contact_ids.index(cid), col] = value
+        num = build.params.tree["numerics"]
+        self.python_forces = [e for e in self.effects if e.has_generalized_force()]
+        if integrator is None:
+            integrator = by_name("scipy-LSODA" if self.python_forces else "dopri54",
+                                 rtol=num["rtol"], max_step=num["max_step"])
+        self.integrator = integrator
+        self.output_rate = float(output_rate or num["output_rate_hz"])
+        if not self.output_rate > 0:
+            raise ValueError(f"output_rate: expected a positive rate in Hz, got {output_rate}")
+        self.atol = np.r_[np.full(k.NQ, num["atol_angle"]), np.full(k.NQ, num["atol_rate"])]
+        self.active = np.ones(k.NQ, dtype=bool)
+        self.active[k.QYK] = build.flags["liftoff"]
+        self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
+        pts = build.params.tree["points"]
+        self._head_pt = np.array(pts["hammer_head"][HEAD_STRIKE_POINT]["at"], dtype=float)
+        beam = build.params.tree["hammer_shank_beam"]
+        gx, gy = beam["strain_gauge_at"][:2]
+        self._gauge = np.array([beam["length"] - gx, gy])
+        self._rest: np.ndarray | None = None
+
+    # -- construction from files ------------------------------------------------
+    @classmethod
+    def from_yaml(cls, path: str | Path | None, *, effects: Sequence[str] = (),
+                  integrator: str | None = None) -> ActionModel:
+        """A model from a model YAML (parameters, effects, integrator); extra effects appended.
+
+        The file may hold ``parameters`` (a file path or a mapping of overrides),
+        ``effects`` (names, ``{name: {param: value}}``, ``module:Class`` or
+        ``file.py:Class``) and ``integrator`` (``{name: dopri54, rtol: 1e-6}``).
+        """
+        data: Mapping[str, Any] = {}
+        base = Path.cwd()
+        if path is not None:
+            p = Path(path)
+            loaded = load_yaml_file(p)
+            if loaded is not None and not isinstance(loaded, Mapping):
+                raise ValueError(f"{p}: expected a mapping with parameters, effects, integrator")
+            data = loaded or {}
+            base = p.parent
+            unknown = sorted(set(map(str, data)) - {"parameters", "effects", "integrator",
+                                                    "description"})
+            if unknown:
+                raise ValueError(f"{p}: {unknown[0]}: unknown key (expected parameters, "
+                                 f"effects, integrator, description)")
+        params = Parameters.default()
+        pspec = data.get("parameters")
+        if isinstance(pspec, str):
+            params = Parameters.from_file(base / pspec)
+        elif isinstance(pspec, Mapping):
+            params.update(pspec, source=f"{path}: parameters")
+        elif pspec is not None:
+            raise ValueError(f"{path}: parameters: expected a file name or a mapping")
+        eff = list(data.get("effects") or [])
+        if not isinstance(data.get("effects") or [], list):
+            raise ValueError(f"{path}: effects: expected a list")
+        eff.extend(e for e in effects if e not in eff)
+        integ = None
+        ispec = data.get("integrator")
+        num = params.tree["numerics"]
+        if integrator is not None or ispec is not None:
+            spec = dict(ispec) if isinstance(ispec, Mapping) else {}
+            name = integrator or str(spec.get("name", "dopri54"))
+            integ = by_name(name, rtol=float(spec.get("rtol", num["rtol"])),
+                            max_step=float(spec.get("max_step", num["max_step"])))
+        return cls(params, eff, integ, base_dir=base)
+
+    # -- information -------------------------------------------------------------
+    @property
+    def effect_names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    @property
+    def coordinates(self) -> list[str]:
+        return [n for n, a in zip(COORDINATES, self.active, strict=True) if a]
+
+    @functools.cached_property
+    def parameters_yaml(self) -> str:
+        """The full parameter set (after effects) as YAML, for run files."""
+        return self.build.params.to_yaml()
+
+    def describe(self) -> dict[str, Any]:
+        """Metadata for run files: effects, integrator, the full parameter set."""
+        return {
+            "effects": [e.describe() for e in self.effects],
+            "integrator": {"name": self.integrator.name,
+                           "rtol": getattr(self.integrator, "rtol", math.nan)},
+            "coordinates": self.coordinates,
+            "parameters_yaml": self.parameters_yaml,
+            "shank_first_mode_hz": self.packed.shank_first_mode_rad_s / (2 * math.pi),
+        }
+
+    def _workspace(self) -> tuple[np.ndarray, ...]:
+        return k.make_workspace(self.packed.n_frames, self.packed.n_contacts)
+
+    def _table_state(self) -> np.ndarray:
+        st = self.build.params.tree["initial_state"]
+        y = np.zeros(k.NY)
+        for i, name in enumerate(COORDINATES):
+            if self.active[i] and name != "y_k":
+                y[i] = st[name]
+        return y
+
+    def accelerations(self, y: np.ndarray, force: float = 0.0) -> np.ndarray:
+        """Generalized accelerations at state y (9 coordinates) under a key force (N)."""
+        ws = self._workspace()
+        dy = np.zeros(k.NY)
+        k.rhs(0.0, np.asarray(y, dtype=float), float(force), self.packed.arrays, ws, dy)
+        return dy[k.NQ :].copy()
+
+    # -- rest state ------------------------------------------------------------------
+    def rest_state(self) -> np.ndarray:
+        """Static equilibrium under gravity with zero key force (state vector, 18)."""
+        if self._rest is None:
+            y = self._table_state()
+            ws = self._workspace()
+            # settle dynamically (friction and damping remove the energy) ...
+            integ = DormandPrince(rtol=1e-6, max_step=1e-3)
+            adv = integ.advance(self.packed.arrays, ws, y, 0.0, 0.4, 1e-5, np.zeros(1),
+                                np.zeros(1), np.zeros(0), self.atol)
+            y = adv.y.copy()
+            y[k.NQ :] = 0.0
+            idx = np.flatnonzero(self.active)
+            dy = np.zeros(k.NY)
+
+            # ... then polish: generalized accelerations = 0 at zero velocity
+            def residual(x: np.ndarray) -> np.ndarray:
+                yy = y.copy()
+                yy[idx] = x
+                k.rhs(0.0, yy, 0.0, self.packed.arrays, ws, dy)
+                return dy[k.NQ + idx]
+
+            sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                                x_scale=1e-3)
+            y[idx] = sol.x
+            self._rest = y
+        return self._rest.copy()
+
+    # -- simulation --------------------------------------------------------------------
+    def stepper(self, y0: np.ndarray | None = None, t0: float = 0.0) -> Stepper:
+        """A state that advances piece by piece (the simulated rig's 500 Hz loop)."""
+        return Stepper(self, self.rest_state() if y0 is None else np.asarray(y0, float), t0)
+
+    def simulate(self, profile: _profiles.Profile, duration: float | None = None, *,
+                 y0: np.ndarray | None = None,
+                 progress: Callable[[float, float], None] | None = None,
+                 chunk: float = 0.05) -> SimResult:
+        """Simulate a blow under the profile's key force, from rest unless y0 is given."""
+        duration = profile.duration if duration is None else float(duration)
+        if not duration > 0:
+            raise ValueError(f"duration: expected a positive time in s, got {duration}")
+        ft, ff = self.input_force(profile)
+        step = self.stepper(y0)
+        wall0 = _time.perf_counter()
+        t = 0.0
+        while t < duration - 1e-12:
+            t_next = min(duration, t + chunk)
+            c = step.advance_table(t_next, ft, ff)
+            t = t_next
+            if progress is not None:
+                progress(t, duration)
+            if c.status != 0:
+                break
+        res = step.result()
+        res.stats["wall_time_s"] = _time.perf_counter() - wall0
+        res.stats["simulated_time_s"] = t
+        res.metadata["profile"] = profile.to_metadata()
+        return res
+
+    def input_force(self, profile: _profiles.Profile,
+                    resolution: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+        """Force knots that reach the key after every effect's input transform."""
+        ft, ff = profile.time.astype(float), profile.force.astype(float)
+        transforming = [e for e in self.effects
+                        if type(e).transform_input is not Effect.transform_input]
+        if transforming:
+            ft = np.arange(0.0, profile.duration + resolution / 2, resolution)
+            ff = profile.at(ft)
+            for e in transforming:
+                ff = np.asarray(e.transform_input(ft, ff), dtype=float)
+        return ft, ff
+
+    def extra_force(self) -> Callable[[float, np.ndarray], np.ndarray] | None:
+        if not self.python_forces:
+            return None
+
+        def total(t: float, y: np.ndarray) -> np.ndarray:
+            q = np.zeros(k.NQ)
+            for e in self.python_forces:
+                f = e.generalized_force(t, y[: k.NQ], y[k.NQ :])
+                if f is not None:
+                    q += np.asarray(f, dtype=float)
+            return q
+
+        return total
+
+    def channels(self, time: np.ndarray, states: np.ndarray,
+                 force: np.ndarray) -> dict[str, np.ndarray]:
+        """Output channels (SI) from sampled states and key forces."""
+        n = time.shape[0]
+        xo = np.zeros((n, k.N_X))
+        co = np.zeros((n, self.packed.n_contacts, k.N_CONTACT_OUT))
+        if n:
+            k.sample_outputs(self.packed.arrays, self._workspace(), states, force,
+                             self._head_pt, self._gauge, xo, co)
+        rest_keytop = self._keytop_rest()
+        ch: dict[str, np.ndarray] = {"time": time.copy(), "force": force.copy()}
+        for name, qi in ANGLE_CHANNELS.items():
+            ch[name] = states[:, qi].copy()
+            ch[name.replace("_angle", "_angular_velocity")] = states[:, k.NQ + qi].copy()
+        ch["hammer_head_velocity"] = xo[:, k.X_HEAD_VY]
+        ch["hammer_head_x"] = xo[:, k.X_HEAD_X]
+        ch["hammer_head_y"] = xo[:, k.X_HEAD_Y]
+        ch["key_dip"] = rest_keytop - xo[:, k.X_KEYTOP_Y]
+        ch["contact_force"] = co[:, :, k.O_FN].copy()
+        ch["contact_friction"] = co[:, :, k.O_FT].copy()
+        ch["contact_penetration"] = co[:, :, k.O_PEN].copy()
+        ch["contact_penetration_rate"] = co[:, :, k.O_PENRATE].copy()
+        ch["contact_slip"] = co[:, :, k.O_SLIP].copy()
+        ch["contact_point_x"] = co[:, :, k.O_PX].copy()
+        if self.build.flags["flexible_shank"]:
+            ch["shank_strain"] = xo[:, k.X_STRAIN]
+            ch["shank_tip_deflection"] = xo[:, k.X_TIP_DEFL]
+        if self.build.flags["liftoff"]:
+            ch["key_lift"] = xo[:, k.X_KEY_LIFT]
+        return ch
+
+    def _keytop_rest(self) -> float:
+        rest = self.rest_state()[None, :]
+        xo = np.zeros((1, k.N_X))
+        co = np.zeros((1, self.packed.n_contacts, k.N_CONTACT_OUT))
+        k.sample_outputs(self.packed.arrays, self._workspace(), rest, np.zeros(1),
+                         self._head_pt, self._gauge, xo, co)
+        return float(xo[0, k.X_KEYTOP_Y])
+
+    def result_from_samples(self, time: np.ndarray, states: np.ndarray, force: np.ndarray,
+                            status: int = 0, message: str = "ok") -> SimResult:
+        ch = self.channels(time, states, force)
+        res = SimResult(time=ch["time"], channels=ch, units=dict(CHANNEL_UNITS), events={},
+                        status=status, message=message, contact_ids=self.packed.contact_ids)
+        for e in self.effects:
+            e.add_channels(res)
+        for e in self.effects:
+            e.measure(res)
+        damping = {int(c["id"]): float(c["D"]) for c in self.build.params.tree["contacts"]}
+        res.events = find_events(res, damping=damping)
+        res.metadata["model"] = self.describe()
+        res.metadata["contact_names"] = list(self.packed.contact_names)
+        return res
+
+
+class Stepper:
+    """The model's state advanced piece by piece, with outputs on a fixed grid."""
+
+    def __init__(self, model: ActionModel, y0: np.ndarray, t0: float = 0.0) -> None:
+        self.model = model
+        self.y = np.array(y0, dtype=float)
+        self.t = float(t0)
+        self.h = 1e-5
+        self._ws = model._workspace()
+        self._times: list[np.ndarray] = []
+        self._states: list[np.ndarray] = []
+        self._forces: list[np.ndarray] = []
+        self._dt = 1.0 / model.output_rate
+        self._next = int(math.floor(self.t / self._dt + 1e-9)) + 1
+        self.status = 0
+        self.message = "ok"
+        self.stats = {"steps": 0.0, "rejected": 0.0, "rhs": 0.0}
+        if self.t == 0.0:  # the initial sample
+            self._times.append(np.zeros(1))
+            self._states.append(self.y[None, :].copy())
+            self._forces.append(np.zeros(1))
+
+    def advance(self, t_end: float, f_start: float, f_end: float | None = None) -> Chunk:
+        """Advance to t_end with the key force going linearly from f_start to f_end (N)."""
+        if f_end is None:
+            f_end = f_start
+        for name, v in (("f_start", f_start), ("f_end", f_end), ("t_end", t_end)):
+            if not math.isfinite(v):
+                raise ValueError(f"{name}: expected a finite number, got {v}")
+        return self.advance_table(t_end, np.array([self.t, t_end]), np.array([f_start, f_end]))
+
+    def advance_table(self, t_end: float, force_t: np.ndarray, force_f: np.ndarray) -> Chunk:
+        """Advance to t_end under the piecewise-linear force (force_t s, force_f N)."""
+        if self.status != 0:
+            raise RuntimeError(f"the simulation has failed ({self.message}); it cannot advance")
+        if t_end <= self.t:
+            raise ValueError(f"t_end: expected a time after {self.t} s, got {t_end}")
+        last = int(math.floor(t_end / self._dt + 1e-9))
+        out_t = np.arange(self._next, last + 1) * self._dt
+        adv: Advance = self.model.integrator.advance(
+            self.model.packed.arrays, self._ws, self.y, self.t, t_end, self.h,
+            np.ascontiguousarray(force_t, dtype=float), np.ascontiguousarray(force_f, dtype=float),
+            out_t, self.model.atol, self.model.extra_force())
+        n = adv.out.shape[0]
+        times = out_t[:n]
+        forces = np.interp(times, force_t, force_f)
+        self._times.append(times)
+        self._states.append(adv.out)
+        self._forces.append(forces)
+        self._next += n
+        self.stats["steps"] += adv.n_steps
+        self.stats["rejected"] += adv.n_rejected
+        self.stats["rhs"] += adv.n_rhs
+        if adv.success:
+            self.y = adv.y
+            self.t = t_end
+            self.h = adv.step
+        else:
+            self.status = adv.status
+            self.message = f"{adv.message} near t = {self.t + (times[-1] - self.t if n else 0):.6f} s"
+        return Chunk(times, adv.out, forces, adv.status, adv.message)
+
+    def result(self) -> SimResult:
+        """Every sample produced so far, with channels and events."""
+        time = np.concatenate(self._times) if self._times else np.zeros(0)
+        states = np.concatenate(self._states) if self._states else np.zeros((0, k.NY))
+        force = np.concatenate(self._forces) if self._forces else np.zeros(0)
+        res = self.model.result_from_samples(time, states, force, self.status, self.message)
+        res.stats.update(self.stats)
+        return res

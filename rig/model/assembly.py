@@ -1,0 +1,193 @@
+"""Pack a parameter tree into the arrays the compiled kernel reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.model import kernel as k
+from rig.params import Parameters
+
+BODY_FRAME = {
+    "ground": k.F_GROUND,
+    "massless_body": k.F_PIVOT,
+    "key": k.F_KEY,
+    "whippen": k.F_WHIPPEN,
+    "jack": k.F_JACK,
+    "repetition": k.F_REP,
+    "hammer_base": k.F_HAMMER,
+    "hammer_head": k.F_HEAD,
+}
+# the shank/head frame origin in the hammer frame (action-geometry.md)
+HEAD_ORIGIN_IN_HAMMER = (-0.1275, 0.0)
+JOINTS = ("key", "whippen", "jack", "repetition", "hammer")
+N_GAUSS = 6
+
+
+@dataclass(frozen=True)
+class Packed:
+    """The kernel's view of one model: a tuple of arrays plus names."""
+
+    arrays: tuple[np.ndarray, ...]
+    contact_ids: tuple[int, ...]
+    contact_names: tuple[str, ...]
+    n_frames: int
+    shank_first_mode_rad_s: float
+
+    @property
+    def n_contacts(self) -> int:
+        return len(self.contact_ids)
+
+
+def _kind(kind: str) -> int:
+    if "hybrid" in kind:
+        return k.K_HYBRID
+    if "circle" in kind:
+        return k.K_CIRCLE
+    if "line" in kind:
+        return k.K_LINE
+    raise ValueError(f"contact feature kind {kind!r} is not line, circle or hybrid")
+
+
+def _feature(params: Parameters, ref: str, sections: list[float], shank_len: float) -> np.ndarray:
+    body, point = ref.split(".")
+    spec = params.get(f"points.{body}.{point}")
+    row = np.zeros(9)
+    row[k.C_KIND] = _kind(spec["kind"])
+    x, y = spec["at"]
+    nx, ny = spec.get("normal", [0.0, 0.0])
+    if body == "hammer_shank":
+        # a point of the shank rides on the cross-section at distance xi from the root
+        xi = shank_len - x
+        sections.append(xi)
+        row[k.C_FRAME] = k.N_RIGID_FRAMES + len(sections) - 1
+        x = 0.0
+    else:
+        row[k.C_FRAME] = BODY_FRAME[body]
+    row[k.C_X], row[k.C_Y] = x, y
+    norm = float(np.hypot(nx, ny))
+    if norm > 0:
+        nx, ny = nx / norm, ny / norm
+    row[k.C_NX], row[k.C_NY] = nx, ny
+    row[k.C_R] = spec.get("radius", 0.0)
+    if "arc" in spec:
+        row[k.C_A0], row[k.C_A1] = spec["arc"]
+    return row
+
+
+def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = False) -> Packed:
+    """Arrays for the kernel; ``liftoff``/``flexible_shank`` switch the built-in effects."""
+    t = params.tree
+    sp = np.zeros(k.N_SP)
+    sp[k.S_G] = t["gravity"]
+    g = t["points"]["ground"]
+    sp[k.S_PG2X], sp[k.S_PG2Y] = g["Pg2"]["at"]
+    sp[k.S_PG3X], sp[k.S_PG3Y] = g["Pg3"]["at"]
+    w = t["points"]["whippen"]
+    sp[k.S_PW2X], sp[k.S_PW2Y] = w["Pw2"]["at"]
+    sp[k.S_PW3X], sp[k.S_PW3Y] = w["Pw3"]["at"]
+    sp[k.S_HEADX], sp[k.S_HEADY] = HEAD_ORIGIN_IN_HAMMER
+    beam = t["hammer_shank_beam"]
+    length = beam["length"]
+    # the shank runs from its root (glued in the flange) toward the head: -x of the hammer frame
+    sp[k.S_ROOTX] = HEAD_ORIGIN_IN_HAMMER[0] + length
+    sp[k.S_ROOTY] = HEAD_ORIGIN_IN_HAMMER[1]
+    sp[k.S_DX], sp[k.S_DY] = -1.0, 0.0
+    sp[k.S_NX], sp[k.S_NY] = 0.0, 1.0
+    sp[k.S_L] = length
+    sp[k.S_EA] = beam["E"] * beam["area"]
+    sp[k.S_EJ] = beam["E"] * beam["Jzz"]
+    sp[k.S_KEYPX], sp[k.S_KEYPY] = t["key_input"]["point"]
+    sp[k.S_PIVY0] = t["key_pivot"]["y0"]
+    sp[k.S_JACK_T] = t["springs"]["jack_torque"] * t["springs_sign"]["jack"]
+    sp[k.S_REP_K] = t["springs"]["repetition"]["k"]
+    sp[k.S_REP_TH0] = t["springs"]["repetition"]["theta0"]
+    sp[k.S_LIFTOFF] = 1.0 if liftoff else 0.0
+    sp[k.S_FLEX] = 1.0 if flexible_shank else 0.0
+
+    sections: list[float] = []
+    cf_rows, cl_rows, ids, names = [], [], [], []
+    vt = t["friction_threshold"]["contact_vt"]
+    for c in t["contacts"]:
+        cid = int(c["id"])
+        ids.append(cid)
+        names.append(str(c["name"]))
+        cf_rows.append(
+            [_feature(params, c["first"], sections, length),
+             _feature(params, c["second"], sections, length)]
+        )
+        law = np.zeros(9)
+        law[k.L_A], law[k.L_B], law[k.L_C], law[k.L_D] = c["a"], c["b"], c["c"], c["D"]
+        law[k.L_MU_A], law[k.L_B1], law[k.L_B2] = c["A"], c["B1"], c["B2"]
+        law[k.L_VT] = vt.get(cid, 0.01)
+        on = cid != 14 or liftoff  # contact 14 (balance rail) exists only with lift-off
+        law[k.L_ON] = 1.0 if on else 0.0
+        cl_rows.append(law)
+    cf = np.array(cf_rows, dtype=float)
+    cl = np.array(cl_rows, dtype=float)
+
+    jf = np.zeros((5, 4))
+    wt = t["friction_threshold"]["joint_wt"]
+    for i, name in enumerate(JOINTS):
+        spec = t["joint_friction"][name]
+        jf[i] = spec["E"], spec["F1"], spec["F2"], wt[name]
+
+    b = t["bodies"]
+    me_rows = []
+    for name, frame in (("key", k.F_KEY), ("whippen", k.F_WHIPPEN), ("jack", k.F_JACK),
+                        ("repetition", k.F_REP), ("hammer_base", k.F_HAMMER),
+                        ("hammer_head", k.F_HEAD)):
+        me_rows.append([frame, b[name]["mass"], b[name]["inertia"], *b[name]["com"]])
+    if not flexible_shank:
+        # rigid shank: its own mass properties, carried by the head/shank frame
+        s = b["hammer_shank"]
+        me_rows.append([k.F_HEAD, s["mass"], s["inertia"], *s["com"]])
+    me = np.array(me_rows, dtype=float)
+
+    xg, wg = np.polynomial.legendre.leggauss(N_GAUSS)
+    xi = 0.5 * length * (xg + 1.0)
+    wxi = 0.5 * length * wg
+    rho = beam["density"]
+    beam_pts = np.column_stack([xi, rho * beam["area"] * wxi, rho * beam["Jzz"] * wxi])
+
+    n_frames = k.N_RIGID_FRAMES + len(sections) + 1  # + scratch frame for beam particles
+    arrays = (sp, np.array(sections, dtype=float), cf, cl, jf, me, beam_pts)
+    omega1 = shank_first_mode(arrays, n_frames, params) if flexible_shank else 0.0
+    if flexible_shank and omega1 > 0:
+        sp[k.S_BETA] = 2.0 * t["hammer_shank_damping"]["ratio"] / omega1
+    return Packed(arrays, tuple(ids), tuple(names), n_frames, omega1)
+
+
+def shank_first_mode(arrays: tuple[np.ndarray, ...], n_frames: int, params: Parameters) -> float:
+    """First bending frequency (rad/s) of the hammer pinned at its flange, in free flight.
+
+    Linearization of the hammer block (theta_h, u1, v1, v2) about the rest angle:
+    mass matrix from the kernel, stiffness from the beam's strain energy.
+    """
+    sp = arrays[0]
+    ws = k.make_workspace(n_frames, arrays[2].shape[0])
+    y = np.zeros(k.NY)
+    y[k.QH] = params.get("initial_state.theta_h")
+    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx = ws
+    k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays[1], O, phi, w, vO, JO, Jp, aO, al, cs)
+    idx = [k.QH, k.QU1, k.QV1, k.QV2]
+    mm = np.zeros((k.NQ, k.NQ))
+    qq = np.zeros(k.NQ)
+    for e in range(arrays[5].shape[0]):
+        f, m, inertia, cx, cy = arrays[5][e]
+        k._mass_element(int(f), m, inertia, cx, cy, 0.0, cs, w, JO, Jp, aO, al, mm, qq)
+    kf = O.shape[0] - 1
+    for p in range(arrays[6].shape[0]):
+        k._beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, O, phi, w, vO, JO, Jp,
+                        aO, al, cs)
+        k._mass_element(kf, arrays[6][p, 1], arrays[6][p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
+                        aO, al, mm, qq)
+    mh = mm[np.ix_(idx, idx)]
+    ln, ea, ej = sp[k.S_L], sp[k.S_EA], sp[k.S_EJ]
+    kh = np.zeros((4, 4))
+    kh[1, 1] = ea * ln
+    kh[2:, 2:] = ej * np.array([[4 * ln, 6 * ln**2], [6 * ln**2, 12 * ln**3]])
+    lam = np.linalg.eigvals(np.linalg.solve(mh, kh)).real
+    lam = np.sort(lam[lam > 1e-6])
+    return float(np.sqrt(lam[0])) if lam.size else 0.0

@@ -1,0 +1,548 @@
+"""Compiled equations of motion of the planar grand-piano action.
+
+Generalized coordinates (always 9; those of effects that are off stay frozen):
+
+    0 theta_k  key, ground -> key frame (rad)
+    1 y_k      key pivot lift along the prismatic joint (m)      [key_liftoff]
+    2 theta_w  whippen, ground -> whippen frame (rad)
+    3 theta_j  jack, relative to the whippen (rad)
+    4 theta_r  repetition lever, relative to the whippen (rad)
+    5 theta_h  hammer, ground -> hammer frame (rad)
+    6 u1       shank axial elastic coordinate (1)                [flexible_shank]
+    7 v1       shank bending coordinate, x^2 term (1/m)          [flexible_shank]
+    8 v2       shank bending coordinate, x^3 term (1/m^2)        [flexible_shank]
+
+The mass matrix is block diagonal (key | whippen, jack, repetition | hammer and
+shank); each block is assembled and solved on its own. State y = [q (9), qdot (9)]. Each body is a frame with origin O, angle phi and
+their Jacobians; forces enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T,
+and velocity-product terms through each frame's bias acceleration. Everything
+is scalar code so numba compiles it; with NUMBA_DISABLE_JIT=1 the same code runs
+as plain Python/numpy (the reference implementation of the benchmark).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+NQ = 9
+NY = 2 * NQ
+QK, QYK, QW, QJ, QR, QH, QU1, QV1, QV2 = range(9)
+BLOCKS = ((0, 2), (2, 5), (5, 9))
+
+# frames
+F_GROUND, F_PIVOT, F_KEY, F_WHIPPEN, F_JACK, F_REP, F_HAMMER, F_HEAD = range(8)
+N_RIGID_FRAMES = 8  # shank section frames follow, one per shank feature
+
+# feature kinds
+K_LINE, K_CIRCLE, K_HYBRID = 1, 2, 3
+
+# scalar parameter slots (sp)
+S_G = 0
+S_PG2X, S_PG2Y, S_PG3X, S_PG3Y = 1, 2, 3, 4
+S_PW2X, S_PW2Y, S_PW3X, S_PW3Y = 5, 6, 7, 8
+S_HEADX, S_HEADY = 9, 10  # head/shank frame origin in the hammer frame
+S_ROOTX, S_ROOTY = 11, 12  # shank root in the hammer frame
+S_DX, S_DY, S_NX, S_NY = 13, 14, 15, 16  # shank axis and transverse unit vectors (hammer frame)
+S_L, S_EA, S_EJ, S_BETA = 17, 18, 19, 20  # beam length, axial & bending stiffness, damping
+S_KEYPX, S_KEYPY = 21, 22  # input force point on the key
+S_PIVY0 = 23
+S_JACK_T, S_REP_K, S_REP_TH0 = 24, 25, 26
+S_LIFTOFF, S_FLEX = 27, 28
+N_SP = 29
+
+# joint friction rows (jf): key, whippen, jack, repetition, hammer ; cols E, F1, F2, wt
+JOINT_COORD = (QK, QW, QJ, QR, QH)
+
+# contact law columns (cl)
+L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON = range(9)
+# contact feature columns (cf[i, side, :])
+C_KIND, C_FRAME, C_X, C_Y, C_NX, C_NY, C_R, C_A0, C_A1 = range(9)
+
+# per-contact output columns
+O_PEN, O_PENRATE, O_FN, O_FT, O_SLIP, O_PX, O_PY = range(7)
+N_CONTACT_OUT = 7
+
+
+@njit(cache=True, inline="always")
+def _block(f):
+    """Coordinate range [lo, hi) that moves frame f."""
+    if f <= F_KEY:
+        return 0, 2
+    if f <= F_REP:
+        return 2, 5
+    return 5, 9
+
+
+@njit(cache=True, inline="always")
+def _rot(phi, x, y):
+    c = math.cos(phi)
+    s = math.sin(phi)
+    return c * x - s * y, s * x + c * y
+
+
+@njit(cache=True, inline="always")
+def _beam_section(xi, q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs):
+    """Frame k = cross-section of the shank at distance xi from its root."""
+    th = q[QH]
+    wh = qd[QH]
+    u1 = q[QU1]
+    v1 = q[QV1]
+    v2 = q[QV2]
+    du1 = qd[QU1]
+    dv1 = qd[QV1]
+    dv2 = qd[QV2]
+    dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
+    sg = dx * ny - dy * nx
+    xi2 = xi * xi
+    xi3 = xi2 * xi
+    xi4 = xi3 * xi
+    xi5 = xi4 * xi
+    s_fore = (2.0 / 3.0) * xi3 * v1 * v1 + 1.5 * xi4 * v1 * v2 + 0.9 * xi5 * v2 * v2
+    ds1 = (4.0 / 3.0) * xi3 * v1 + 1.5 * xi4 * v2
+    ds2 = 1.5 * xi4 * v1 + 1.8 * xi5 * v2
+    a = xi * (1.0 + u1) - s_fore
+    b = xi2 * v1 + xi3 * v2
+    px = sp[S_ROOTX] + dx * a + nx * b
+    py = sp[S_ROOTY] + dy * a + ny * b
+    rpx, rpy = _rot(th, px, py)
+    O[k, 0] = sp[S_PG3X] + rpx
+    O[k, 1] = sp[S_PG3Y] + rpy
+    slope = 2.0 * xi * v1 + 3.0 * xi2 * v2
+    phi[k] = th + sg * slope
+    cs[k, 0] = math.cos(phi[k])
+    cs[k, 1] = math.sin(phi[k])
+    dslope = 2.0 * xi * dv1 + 3.0 * xi2 * dv2
+    w[k] = wh + sg * dslope
+    for j in range(QH, NQ):
+        JO[k, 0, j] = 0.0
+        JO[k, 1, j] = 0.0
+        Jp[k, j] = 0.0
+    JO[k, 0, QH] = -rpy
+    JO[k, 1, QH] = rpx
+    Jp[k, QH] = 1.0
+    if sp[S_FLEX] > 0.5:
+        ex, ey = _rot(th, dx, dy)
+        tx, ty = _rot(th, nx, ny)
+        JO[k, 0, QU1] = ex * xi
+        JO[k, 1, QU1] = ey * xi
+        JO[k, 0, QV1] = -ex * ds1 + tx * xi2
+        JO[k, 1, QV1] = -ey * ds1 + ty * xi2
+        JO[k, 0, QV2] = -ex * ds2 + tx * xi3
+        JO[k, 1, QV2] = -ey * ds2 + ty * xi3
+        Jp[k, QV1] = sg * 2.0 * xi
+        Jp[k, QV2] = sg * 3.0 * xi2
+        adot = xi * du1 - ds1 * dv1 - ds2 * dv2
+        bdot = xi2 * dv1 + xi3 * dv2
+        rdx = ex * adot + tx * bdot  # R pdot
+        rdy = ey * adot + ty * bdot
+        quad = (4.0 / 3.0) * xi3 * dv1 * dv1 + 3.0 * xi4 * dv1 * dv2 + 1.8 * xi5 * dv2 * dv2
+        vO[k, 0] = -wh * rpy + rdx
+        vO[k, 1] = wh * rpx + rdy
+        aO[k, 0] = -wh * wh * rpx - 2.0 * wh * rdy - ex * quad
+        aO[k, 1] = -wh * wh * rpy + 2.0 * wh * rdx - ey * quad
+    else:
+        vO[k, 0] = -wh * rpy
+        vO[k, 1] = wh * rpx
+        aO[k, 0] = -wh * wh * rpx
+        aO[k, 1] = -wh * wh * rpy
+    al[k] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _child_frame(k, parent, px, py, q_own, qd_own, O, phi, w, vO, JO, Jp, aO, al, qi):
+    """Frame k pinned at parent-frame point (px, py), turning by coordinate qi."""
+    rx, ry = _rot(phi[parent], px, py)
+    O[k, 0] = O[parent, 0] + rx
+    O[k, 1] = O[parent, 1] + ry
+    wp = w[parent]
+    lo, hi = _block(k)
+    for j in range(lo, hi):
+        JO[k, 0, j] = JO[parent, 0, j] - ry * Jp[parent, j]
+        JO[k, 1, j] = JO[parent, 1, j] + rx * Jp[parent, j]
+        Jp[k, j] = Jp[parent, j]
+    Jp[k, qi] += 1.0
+    vO[k, 0] = vO[parent, 0] - wp * ry
+    vO[k, 1] = vO[parent, 1] + wp * rx
+    aO[k, 0] = aO[parent, 0] - al[parent] * ry - wp * wp * rx
+    aO[k, 1] = aO[parent, 1] + al[parent] * rx - wp * wp * ry
+    phi[k] = phi[parent] + q_own
+    w[k] = wp + qd_own
+    al[k] = al[parent]
+
+
+@njit(cache=True)
+def kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs):
+    """Fill every frame's pose, velocity, Jacobians and bias accelerations."""
+    nf = O.shape[0]
+    for k in range(nf):
+        O[k, 0] = 0.0
+        O[k, 1] = 0.0
+        phi[k] = 0.0
+        w[k] = 0.0
+        vO[k, 0] = 0.0
+        vO[k, 1] = 0.0
+        aO[k, 0] = 0.0
+        aO[k, 1] = 0.0
+        al[k] = 0.0
+    # Jacobian entries outside a frame's coordinate block stay zero from make_workspace
+    # and are never read.
+    # key pivot (massless body when lift-off is on)
+    O[F_PIVOT, 1] = sp[S_PIVY0] + q[QYK]
+    if sp[S_LIFTOFF] > 0.5:
+        JO[F_PIVOT, 1, QYK] = 1.0
+        vO[F_PIVOT, 1] = qd[QYK]
+    _child_frame(F_KEY, F_PIVOT, 0.0, 0.0, q[QK], qd[QK], O, phi, w, vO, JO, Jp, aO, al, QK)
+    # whippen on its ground pivot
+    O[F_WHIPPEN, 0] = sp[S_PG2X]
+    O[F_WHIPPEN, 1] = sp[S_PG2Y]
+    phi[F_WHIPPEN] = q[QW]
+    w[F_WHIPPEN] = qd[QW]
+    Jp[F_WHIPPEN, QW] = 1.0
+    _child_frame(
+        F_JACK, F_WHIPPEN, sp[S_PW2X], sp[S_PW2Y], q[QJ], qd[QJ], O, phi, w, vO, JO, Jp, aO, al, QJ
+    )
+    _child_frame(
+        F_REP, F_WHIPPEN, sp[S_PW3X], sp[S_PW3Y], q[QR], qd[QR], O, phi, w, vO, JO, Jp, aO, al, QR
+    )
+    # hammer base on its ground pivot
+    O[F_HAMMER, 0] = sp[S_PG3X]
+    O[F_HAMMER, 1] = sp[S_PG3Y]
+    phi[F_HAMMER] = q[QH]
+    w[F_HAMMER] = qd[QH]
+    Jp[F_HAMMER, QH] = 1.0
+    # head: carried at the shank's free end (its frame origin is the shank tip)
+    _beam_section(sp[S_L], q, qd, sp, F_HEAD, O, phi, w, vO, JO, Jp, aO, al, cs)
+    for s in range(sec_xi.shape[0]):
+        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, O, phi, w, vO, JO, Jp, aO, al, cs)
+    for f in range(F_HEAD):
+        cs[f, 0] = math.cos(phi[f])
+        cs[f, 1] = math.sin(phi[f])
+
+
+@njit(cache=True, inline="always")
+def _add_point_force(f, px, py, fx, fy, O, JO, Jp, Q):
+    if f == F_GROUND:
+        return
+    rx = px - O[f, 0]
+    ry = py - O[f, 1]
+    mom = rx * fy - ry * fx
+    lo, hi = _block(f)
+    for j in range(lo, hi):
+        Q[j] += JO[f, 0, j] * fx + JO[f, 1, j] * fy + Jp[f, j] * mom
+
+
+@njit(cache=True, inline="always")
+def _feature_world(cf, i, side, O, cs):
+    f = int(cf[i, side, C_FRAME])
+    c = cs[f, 0]
+    s = cs[f, 1]
+    x = cf[i, side, C_X]
+    y = cf[i, side, C_Y]
+    nx = cf[i, side, C_NX]
+    ny = cf[i, side, C_NY]
+    return f, O[f, 0] + c * x - s * y, O[f, 1] + s * x + c * y, c * nx - s * ny, s * nx + c * ny
+
+
+@njit(cache=True, inline="always")
+def contact_geometry(cf, i, O, phi, cs):
+    """Penetration (m), unit normal from body 1 to body 2, and contact point."""
+    k1 = int(cf[i, 0, C_KIND])
+    k2 = int(cf[i, 1, C_KIND])
+    f1, x1, y1, n1x, n1y = _feature_world(cf, i, 0, O, cs)
+    f2, x2, y2, n2x, n2y = _feature_world(cf, i, 1, O, cs)
+    r1 = cf[i, 0, C_R]
+    r2 = cf[i, 1, C_R]
+    if k1 == K_LINE:  # line on body 1, circle on body 2
+        d = n1x * (x2 - x1) + n1y * (y2 - y1)
+        pen = r2 - d
+        nx, ny = n1x, n1y
+        px = x2 - nx * (r2 - 0.5 * pen)
+        py = y2 - ny * (r2 - 0.5 * pen)
+    elif k2 == K_LINE:  # circle on body 1, line on body 2
+        d = n2x * (x1 - x2) + n2y * (y1 - y2)
+        pen = r1 - d
+        nx, ny = -n2x, -n2y
+        px = x1 + nx * (r1 - 0.5 * pen)
+        py = y1 + ny * (r1 - 0.5 * pen)
+    elif k1 == K_HYBRID:  # arc with tangent extensions on body 1, circle on body 2
+        wx = x2 - x1
+        wy = y2 - y1
+        a0 = cf[i, 0, C_A0]
+        a1 = cf[i, 0, C_A1]
+        mid = 0.5 * (a0 + a1)
+        beta = math.atan2(wy, wx) - phi[f1]
+        beta = mid + math.atan2(math.sin(beta - mid), math.cos(beta - mid))
+        if a0 <= beta <= a1:
+            dist = math.sqrt(wx * wx + wy * wy)
+            nx = wx / dist
+            ny = wy / dist
+        else:
+            e = a0 if beta < a0 else a1
+            nx = math.cos(e + phi[f1])
+            ny = math.sin(e + phi[f1])
+            dist = nx * wx + ny * wy
+        pen = r1 + r2 - dist
+        px = x2 - nx * (r2 - 0.5 * pen)
+        py = y2 - ny * (r2 - 0.5 * pen)
+    else:  # circle - circle
+        wx = x2 - x1
+        wy = y2 - y1
+        dist = math.sqrt(wx * wx + wy * wy)
+        nx = wx / dist
+        ny = wy / dist
+        pen = r1 + r2 - dist
+        px = x1 + nx * (r1 - 0.5 * pen)
+        py = y1 + ny * (r1 - 0.5 * pen)
+    return f1, f2, pen, nx, ny, px, py
+
+
+@njit(cache=True, inline="always")
+def friction_coefficient(slip, mu_a, b1, b2, vt):
+    """Smoothed Coulomb law, Eq. 3.6 (odd in the slip speed)."""
+    r = slip / vt
+    return mu_a * (math.tanh(r) + b1 * r / (1.0 + b2 * r * r * r * r))
+
+
+@njit(cache=True, inline="always")
+def normal_force(pen, pen_rate, a, b, c, d):
+    """Eq. 3.2-3.3: f = (a x^3 + b x^2 + c x)(1 + D xdot), never pulling."""
+    if pen <= 0.0:
+        return 0.0
+    f = (a * pen * pen * pen + b * pen * pen + c * pen) * (1.0 + d * pen_rate)
+    return f if f > 0.0 else 0.0
+
+
+@njit(cache=True)
+def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
+    """Add every contact's normal and friction force to Q; fill cout per contact.
+
+    With ``full`` false, separated contacts get only their penetration (the
+    integrator's fast path); with ``full`` true every output column is filled.
+    """
+    for i in range(cl.shape[0]):
+        if cl[i, L_ON] < 0.5:
+            for j in range(N_CONTACT_OUT):
+                cout[i, j] = 0.0
+            continue
+        f1, f2, pen, nx, ny, px, py = contact_geometry(cf, i, O, phi, cs)
+        cout[i, O_PEN] = pen
+        if pen <= 0.0 and not full:
+            cout[i, O_FN] = 0.0
+            cout[i, O_FT] = 0.0
+            continue
+        v1x = vO[f1, 0] - w[f1] * (py - O[f1, 1])
+        v1y = vO[f1, 1] + w[f1] * (px - O[f1, 0])
+        v2x = vO[f2, 0] - w[f2] * (py - O[f2, 1])
+        v2y = vO[f2, 1] + w[f2] * (px - O[f2, 0])
+        rvx = v2x - v1x
+        rvy = v2y - v1y
+        pen_rate = -(nx * rvx + ny * rvy)
+        tx = -ny
+        ty = nx
+        slip = tx * rvx + ty * rvy
+        fn = normal_force(pen, pen_rate, cl[i, L_A], cl[i, L_B], cl[i, L_C], cl[i, L_D])
+        ft = 0.0
+        if fn > 0.0 and cl[i, L_MU_A] > 0.0:
+            ft = -fn * friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
+        if fn > 0.0:
+            fx = fn * nx + ft * tx
+            fy = fn * ny + ft * ty
+            _add_point_force(f2, px, py, fx, fy, O, JO, Jp, Q)
+            _add_point_force(f1, px, py, -fx, -fy, O, JO, Jp, Q)
+        cout[i, O_PENRATE] = pen_rate
+        cout[i, O_FN] = fn
+        cout[i, O_FT] = ft
+        cout[i, O_SLIP] = slip
+        cout[i, O_PX] = px
+        cout[i, O_PY] = py
+
+
+@njit(cache=True, inline="always")
+def joint_torque(omega, e, f1, f2, wt):
+    """Eq. 3.8 pin-joint friction torque (opposes the joint's relative speed)."""
+    r = omega / wt
+    return e * (math.tanh(r) + f1 * r / (1.0 + f2 * r * r * r * r))
+
+
+@njit(cache=True, inline="always")
+def _mass_element(f, m, inertia, cx, cy, g, cs, w, JO, Jp, aO, al, M, Q):
+    rx = cs[f, 0] * cx - cs[f, 1] * cy
+    ry = cs[f, 1] * cx + cs[f, 0] * cy
+    wf = w[f]
+    acx = aO[f, 0] - al[f] * ry - wf * wf * rx
+    acy = aO[f, 1] + al[f] * rx - wf * wf * ry
+    lo, hi = _block(f)
+    for a in range(lo, hi):
+        ja_x = JO[f, 0, a] - ry * Jp[f, a]
+        ja_y = JO[f, 1, a] + rx * Jp[f, a]
+        Q[a] -= m * (ja_x * acx + ja_y * (acy + g)) + inertia * Jp[f, a] * al[f]
+        for b in range(lo, hi):
+            jb_x = JO[f, 0, b] - ry * Jp[f, b]
+            jb_y = JO[f, 1, b] + rx * Jp[f, b]
+            M[a, b] += m * (ja_x * jb_x + ja_y * jb_y) + inertia * Jp[f, a] * Jp[f, b]
+
+
+@njit(cache=True, inline="always")
+def _solve(M, b, x, lo, n):
+    """Solve the diagonal block [lo, n) by Gaussian elimination with partial pivoting.
+
+    M and b are overwritten.
+    """
+    for c in range(lo, n):
+        p = c
+        big = abs(M[c, c])
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > big:
+                big = abs(M[r, c])
+                p = r
+        if p != c:
+            for k in range(lo, n):
+                tmp = M[c, k]
+                M[c, k] = M[p, k]
+                M[p, k] = tmp
+            tmp = b[c]
+            b[c] = b[p]
+            b[p] = tmp
+        for r in range(c + 1, n):
+            fac = M[r, c] / M[c, c]
+            if fac != 0.0:
+                for k in range(c, n):
+                    M[r, k] -= fac * M[c, k]
+                b[r] -= fac * b[c]
+    for r in range(n - 1, lo - 1, -1):
+        acc = b[r]
+        for k in range(r + 1, n):
+            acc -= M[r, k] * x[k]
+        x[r] = acc / M[r, r]
+
+
+def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
+    """Scratch arrays for one evaluation (allocated once per integration)."""
+    return (
+        np.zeros((n_frames, 2)),  # O
+        np.zeros(n_frames),  # phi
+        np.zeros(n_frames),  # w
+        np.zeros((n_frames, 2)),  # vO
+        np.zeros((n_frames, 2, NQ)),  # JO
+        np.zeros((n_frames, NQ)),  # Jp
+        np.zeros((n_frames, 2)),  # aO
+        np.zeros(n_frames),  # al
+        np.zeros((n_frames, 2)),  # cos, sin of each frame's angle
+        np.zeros((NQ, NQ)),  # M
+        np.zeros(NQ),  # Q
+        np.zeros((n_contacts, N_CONTACT_OUT)),  # contact outputs
+        np.zeros(NQ),  # qdd
+        np.zeros(NQ),  # extra generalized forces (set by Python-level effects)
+    )
+
+
+@njit(cache=True)
+def accelerations(t, y, f_key, model, ws, full):
+    """Generalized accelerations for state y under key force f_key (N, downward)."""
+    sp, sec_xi, cf, cl, jf, me, beam = model
+    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    q = y[:NQ]
+    qd = y[NQ : 2 * NQ]
+    kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
+    for a in range(NQ):
+        Q[a] = 0.0
+        for b in range(NQ):
+            M[a, b] = 0.0
+    g = sp[S_G]
+    # rigid mass elements: frame, m, I, cx, cy
+    for e in range(me.shape[0]):
+        _mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
+                      cs, w, JO, Jp, aO, al, M, Q)
+    # flexible shank: Gauss particles (xi, mass, rotary inertia) on a scratch frame
+    if sp[S_FLEX] > 0.5:
+        k = O.shape[0] - 1
+        for p in range(beam.shape[0]):
+            _beam_section(beam[p, 0], q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs)
+            _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, g, cs, w, JO, Jp, aO, al, M, Q)
+        ea = sp[S_EA]
+        ej = sp[S_EJ]
+        ln = sp[S_L]
+        beta = sp[S_BETA]
+        u1 = q[QU1] + beta * qd[QU1]
+        v1 = q[QV1] + beta * qd[QV1]
+        v2 = q[QV2] + beta * qd[QV2]
+        Q[QU1] -= ea * ln * u1
+        Q[QV1] -= ej * (4.0 * ln * v1 + 6.0 * ln * ln * v2)
+        Q[QV2] -= ej * (6.0 * ln * ln * v1 + 12.0 * ln * ln * ln * v2)
+    # contacts
+    contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full)
+    # pin-joint friction and springs
+    for jn in range(5):
+        c = JOINT_COORD[jn]
+        Q[c] -= joint_torque(qd[c], jf[jn, 0], jf[jn, 1], jf[jn, 2], jf[jn, 3])
+    Q[QJ] += sp[S_JACK_T]
+    Q[QR] -= sp[S_REP_K] * (q[QR] - sp[S_REP_TH0])
+    # finger / motor force on the key top, straight down
+    kx = cs[F_KEY, 0] * sp[S_KEYPX] - cs[F_KEY, 1] * sp[S_KEYPY]
+    ky = cs[F_KEY, 1] * sp[S_KEYPX] + cs[F_KEY, 0] * sp[S_KEYPY]
+    _add_point_force(F_KEY, O[F_KEY, 0] + kx, O[F_KEY, 1] + ky, 0.0, -f_key, O, JO, Jp, Q)
+    for a in range(NQ):
+        Q[a] += qx[a]
+    # frozen coordinates
+    if sp[S_LIFTOFF] < 0.5:
+        M[QYK, QYK] = 1.0
+        Q[QYK] = 0.0
+    if sp[S_FLEX] < 0.5:
+        for c in range(QU1, QV2 + 1):
+            M[c, c] = 1.0
+            Q[c] = 0.0
+    for blk in range(3):
+        _solve(M, Q, qdd, BLOCKS[blk][0], BLOCKS[blk][1])
+    return qdd
+
+
+@njit(cache=True)
+def rhs(t, y, f_key, model, ws, dy):
+    """dy/dt of the state under key force f_key."""
+    qdd = accelerations(t, y, f_key, model, ws, False)
+    for a in range(NQ):
+        dy[a] = y[NQ + a]
+        dy[NQ + a] = qdd[a]
+
+
+# sampled output columns (besides the state): see sample_outputs
+X_HEAD_VX, X_HEAD_VY, X_HEAD_X, X_HEAD_Y, X_KEYTOP_Y, X_TIP_DEFL, X_STRAIN, X_KEY_LIFT = range(8)
+N_X = 8
+
+
+@njit(cache=True)
+def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
+    """Derived channels for each state row of Y under key forces F.
+
+    head_pt: striking-felt centre in the head frame; gauge: (xi from root, y) of
+    the strain gauge. out gets the X_* columns, cout_all every contact's outputs.
+    """
+    sp, sec_xi, cf, cl, jf, me, beam = model
+    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    for r in range(Y.shape[0]):
+        y = Y[r]
+        kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
+        contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, True)
+        for i in range(cout.shape[0]):
+            for j in range(N_CONTACT_OUT):
+                cout_all[r, i, j] = cout[i, j]
+        hx = cs[F_HEAD, 0] * head_pt[0] - cs[F_HEAD, 1] * head_pt[1]
+        hy = cs[F_HEAD, 1] * head_pt[0] + cs[F_HEAD, 0] * head_pt[1]
+        out[r, X_HEAD_VX] = vO[F_HEAD, 0] - w[F_HEAD] * hy
+        out[r, X_HEAD_VY] = vO[F_HEAD, 1] + w[F_HEAD] * hx
+        out[r, X_HEAD_X] = O[F_HEAD, 0] + hx
+        out[r, X_HEAD_Y] = O[F_HEAD, 1] + hy
+        kx = cs[F_KEY, 0] * sp[S_KEYPX] - cs[F_KEY, 1] * sp[S_KEYPY]
+        ky = cs[F_KEY, 1] * sp[S_KEYPX] + cs[F_KEY, 0] * sp[S_KEYPY]
+        out[r, X_KEYTOP_Y] = O[F_KEY, 1] + ky
+        ln = sp[S_L]
+        out[r, X_TIP_DEFL] = ln * ln * y[QV1] + ln * ln * ln * y[QV2]
+        xi = gauge[0]
+        yg = gauge[1]
+        u1 = y[QU1]
+        curv = 2.0 * y[QV1] + 6.0 * xi * y[QV2]
+        out[r, X_STRAIN] = u1 + 0.5 * u1 * u1 - yg * curv + 0.5 * yg * yg * curv * curv
+        out[r, X_KEY_LIFT] = y[QYK]

@@ -1,0 +1,190 @@
+"""Model parameters: the thesis's values, our chosen ones, and user overrides.
+
+One nested tree (dicts and lists, SI units) loaded from the package's
+``data/action-parameters.yaml`` (thesis, verbatim) and
+``data/chosen-parameters.yaml`` (values the thesis leaves out). A user file
+may override any existing value; unknown names are refused so a typo never
+silently leaves a parameter at its default.
+
+Parameters are addressed by dotted paths, e.g. ``contacts.4.D`` (contact by
+its id), ``bodies.key.mass``, ``joint_friction.hammer.E``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Iterator, Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+_DATA = resources.files("rig") / "data"
+
+
+def _load_yaml_text(text: str, source: str) -> Any:
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ValueError(f"{source}:{where} is not valid YAML ({exc.__class__.__name__})") from None
+
+
+def load_yaml_file(path: str | Path) -> Any:
+    """Read a YAML file, raising a one-line ``ValueError`` naming it on failure."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: file not found")
+    return _load_yaml_text(p.read_text(encoding="utf-8"), str(p))
+
+
+def _defaults() -> dict[str, Any]:
+    base = _load_yaml_text((_DATA / "action-parameters.yaml").read_text("utf-8"), "thesis params")
+    chosen = _load_yaml_text((_DATA / "chosen-parameters.yaml").read_text("utf-8"), "chosen")
+    for key, value in chosen.items():
+        if key in base:
+            raise RuntimeError(f"chosen-parameters.yaml redefines thesis key {key!r}")
+        base[key] = value
+    return base
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+class Parameters:
+    """A validated, addressable tree of model parameters."""
+
+    def __init__(self, tree: dict[str, Any] | None = None) -> None:
+        self._tree: dict[str, Any] = tree if tree is not None else _defaults()
+
+    # -- construction -------------------------------------------------------
+    @classmethod
+    def default(cls) -> Parameters:
+        return cls()
+
+    @classmethod
+    def from_file(cls, path: str | Path | None) -> Parameters:
+        """Defaults overridden by the YAML mapping in ``path`` (if given)."""
+        params = cls()
+        if path is not None:
+            data = load_yaml_file(path)
+            if data is None:
+                return params
+            if not isinstance(data, Mapping):
+                raise ValueError(f"{path}: expected a mapping of parameter overrides")
+            params.update(data, source=str(path))
+        return params
+
+    def copy(self) -> Parameters:
+        return Parameters(copy.deepcopy(self._tree))
+
+    @property
+    def tree(self) -> dict[str, Any]:
+        """The underlying nested dict (read it, do not mutate it)."""
+        return self._tree
+
+    # -- addressing ---------------------------------------------------------
+    def _locate(self, path: str) -> tuple[Any, Any]:
+        parts = path.split(".")
+        node: Any = self._tree
+        for i, part in enumerate(parts[:-1]):
+            node = self._child(node, part, ".".join(parts[: i + 1]))
+        last = parts[-1]
+        if isinstance(node, list):
+            return node, self._contact_index(node, last, path)
+        if isinstance(node, dict):
+            key = self._dict_key(node, last)
+            if key is None:
+                raise ValueError(f"parameter {path!r}: no such parameter")
+            return node, key
+        raise ValueError(f"parameter {path!r}: no such parameter")
+
+    @staticmethod
+    def _dict_key(node: dict[Any, Any], part: str) -> Any:
+        if part in node:
+            return part
+        if part.lstrip("-").isdigit() and int(part) in node:
+            return int(part)
+        return None
+
+    def _child(self, node: Any, part: str, where: str) -> Any:
+        if isinstance(node, list):
+            return node[self._contact_index(node, part, where)]
+        if isinstance(node, dict):
+            key = self._dict_key(node, part)
+            if key is not None:
+                return node[key]
+        raise ValueError(f"parameter {where!r}: no such parameter")
+
+    @staticmethod
+    def _contact_index(node: list[Any], part: str, where: str) -> int:
+        for i, item in enumerate(node):
+            if isinstance(item, dict) and str(item.get("id")) == part:
+                return i
+        raise ValueError(f"parameter {where!r}: no list entry with id {part}")
+
+    def get(self, path: str) -> Any:
+        node, key = self._locate(path)
+        return node[key]
+
+    def set(self, path: str, value: Any) -> None:
+        """Set an existing numeric parameter; refuses unknown paths and non-numbers."""
+        node, key = self._locate(path)
+        old = node[key]
+        if _is_number(old):
+            if not _is_number(value) or not math.isfinite(float(value)):
+                raise ValueError(f"parameter {path!r}: expected a finite number, got {value!r}")
+            node[key] = float(value)
+        elif isinstance(old, list) and all(_is_number(v) for v in old):
+            if not isinstance(value, list | tuple) or len(value) != len(old):
+                raise ValueError(f"parameter {path!r}: expected a list of {len(old)} numbers")
+            if not all(_is_number(v) and math.isfinite(float(v)) for v in value):
+                raise ValueError(f"parameter {path!r}: expected finite numbers, got {value!r}")
+            node[key] = [float(v) for v in value]
+        elif isinstance(old, str):
+            if not isinstance(value, str):
+                raise ValueError(f"parameter {path!r}: expected text, got {value!r}")
+            node[key] = value
+        else:
+            raise ValueError(f"parameter {path!r}: is a group, set its members instead")
+
+    def update(self, overrides: Mapping[str, Any], source: str = "overrides") -> None:
+        """Apply a nested mapping of overrides (contacts keyed by id)."""
+        for path, value in _flatten(overrides):
+            try:
+                self.set(path, value)
+            except ValueError as exc:
+                raise ValueError(f"{source}: {exc}") from None
+
+    def paths(self) -> Iterator[str]:
+        """Every numeric leaf's dotted path."""
+        yield from _leaf_paths(self._tree, "")
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self._tree, sort_keys=False)
+
+
+def _flatten(mapping: Mapping[Any, Any], prefix: str = "") -> Iterator[tuple[str, Any]]:
+    for key, value in mapping.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            yield from _flatten(value, path + ".")
+        else:
+            yield path, value
+
+
+def _leaf_paths(node: Any, prefix: str) -> Iterator[str]:
+    if isinstance(node, dict):
+        for key, value in node.items():
+            yield from _leaf_paths(value, f"{prefix}{key}.")
+    elif isinstance(node, list) and node and isinstance(node[0], dict) and "id" in node[0]:
+        for item in node:
+            for key, value in item.items():
+                if key != "id" and _is_number(value):
+                    yield f"{prefix}{item['id']}.{key}"
+    elif _is_number(node) or (isinstance(node, list) and all(_is_number(v) for v in node)):
+        yield prefix[:-1]

@@ -1,0 +1,186 @@
+"""Force profiles: the force pressing the key top over time.
+
+A profile file is YAML with exactly one of three forms of the curve:
+
+    segments:                 # a piecewise-linear recipe, starting at 0 N
+      - {hold: 0.02}          # stay at the current force for 0.02 s
+      - {ramp: 0.03, to: 30}  # go linearly to 30 N in 0.03 s
+    points: [[0, 0], [0.03, 30], ...]   # a table of (time s, force N)
+    csv: measured-force.csv # two columns time_s, force_N (header optional),
+                            # path relative to the YAML file
+
+plus optional ``name`` and ``description``. A bare ``.csv`` file is accepted
+too. Between points the force is linear. Everything is checked on load:
+times must increase, values must be finite, forces must lie in
+[0, limit], and unknown keys are refused.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig.params import load_yaml_file
+
+DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
+_KEYS = {"name", "description", "segments", "points", "csv"}
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A validated force profile: knots (s, N), linear in between."""
+
+    time: np.ndarray
+    force: np.ndarray
+    name: str = "profile"
+    description: str = ""
+    source: str = ""
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1])
+
+    @property
+    def peak(self) -> float:
+        return float(self.force.max())
+
+    def at(self, t: float | np.ndarray) -> np.ndarray:
+        """Force (N) at time(s) t; held at the end values outside the profile."""
+        return np.interp(t, self.time, self.force)
+
+    def to_metadata(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description, "source": self.source}
+
+
+def _fail(source: str, field: str, expected: str) -> ValueError:
+    return ValueError(f"{source}: {field}: {expected}")
+
+
+def _number(value: Any, source: str, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise _fail(source, field, f"expected a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise _fail(source, field, f"expected a finite number, got {value!r}")
+    return v
+
+
+def from_points(points: Sequence[Sequence[Any]], *, name: str = "profile", description: str = "",
+                source: str = "profile", force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profile:
+    """Build and validate a profile from (time s, force N) pairs."""
+    if len(points) < 2:
+        raise _fail(source, "points", "expected at least two (time, force) pairs")
+    t = np.empty(len(points))
+    f = np.empty(len(points))
+    for i, pair in enumerate(points):
+        if not isinstance(pair, Sequence) or isinstance(pair, str) or len(pair) != 2:
+            raise _fail(source, f"points[{i}]", f"expected [time_s, force_N], got {pair!r}")
+        t[i] = _number(pair[0], source, f"points[{i}] time")
+        f[i] = _number(pair[1], source, f"points[{i}] force")
+    return _validated(t, f, name, description, source, force_limit)
+
+
+def _validated(t: np.ndarray, f: np.ndarray, name: str, description: str, source: str,
+               force_limit: float) -> Profile:
+    if t[0] < 0:
+        raise _fail(source, "points[0] time", f"expected >= 0 s, got {t[0]}")
+    steps = np.diff(t)
+    bad = np.flatnonzero(steps <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise _fail(source, f"points[{i}] time",
+                    f"expected time to increase, got {t[i]} s after {t[i - 1]} s")
+    neg = np.flatnonzero(f < 0)
+    if neg.size:
+        i = int(neg[0])
+        raise _fail(source, f"points[{i}] force", f"expected >= 0 N (the motor only presses), "
+                    f"got {f[i]}")
+    over = np.flatnonzero(f > force_limit)
+    if over.size:
+        i = int(over[0])
+        raise _fail(source, f"points[{i}] force",
+                    f"{f[i]} N is above the force limit of {force_limit} N")
+    return Profile(t, f, name, description, source)
+
+
+def _from_segments(segments: Any, source: str) -> list[list[float]]:
+    if not isinstance(segments, list) or not segments:
+        raise _fail(source, "segments", "expected a non-empty list of {hold: s} / "
+                    "{ramp: s, to: N} items")
+    pts: list[list[float]] = [[0.0, 0.0]]
+    for i, seg in enumerate(segments):
+        where = f"segments[{i}]"
+        if not isinstance(seg, Mapping):
+            raise _fail(source, where, f"expected a mapping, got {seg!r}")
+        keys = set(seg)
+        t, f = pts[-1]
+        if keys == {"hold"}:
+            dt = _number(seg["hold"], source, f"{where}.hold")
+            pts.append([t + dt, f])
+        elif keys == {"ramp", "to"}:
+            dt = _number(seg["ramp"], source, f"{where}.ramp")
+            pts.append([t + dt, _number(seg["to"], source, f"{where}.to")])
+        elif keys == {"start"}:
+            if i != 0:
+                raise _fail(source, where, "start is allowed only as the first segment")
+            pts[0][1] = _number(seg["start"], source, f"{where}.start")
+        else:
+            raise _fail(source, where, f"expected {{hold: s}} or {{ramp: s, to: N}}, got keys "
+                        f"{sorted(keys)}")
+        if pts[-1][0] <= t:
+            raise _fail(source, where, "expected a positive duration")
+    return pts
+
+
+def _read_csv(path: Path, source: str) -> list[list[Any]]:
+    if not path.is_file():
+        raise _fail(source, "csv", f"file {path} not found")
+    rows: list[list[Any]] = []
+    with path.open(newline="", encoding="utf-8") as fh:
+        for n, row in enumerate(csv.reader(fh), start=1):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) < 2:
+                raise _fail(str(path), f"line {n}", "expected two columns: time_s, force_N")
+            try:
+                rows.append([float(row[0]), float(row[1])])
+            except ValueError:
+                if rows or n > 1:
+                    raise _fail(str(path), f"line {n}", f"expected numbers, got {row[:2]}") \
+                        from None
+                # a header line
+    return rows
+
+
+def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profile:
+    """Load and validate a profile file (YAML or CSV)."""
+    p = Path(path)
+    if p.suffix.lower() == ".csv":
+        return from_points(_read_csv(p, str(p)), name=p.stem, source=str(p),
+                           force_limit=force_limit)
+    data = load_yaml_file(p)
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{p}: expected a mapping with segments, points or csv")
+    unknown = sorted(set(map(str, data)) - _KEYS)
+    if unknown:
+        raise _fail(str(p), unknown[0], f"unknown key (expected one of {sorted(_KEYS)})")
+    forms = [k for k in ("segments", "points", "csv") if k in data]
+    if len(forms) != 1:
+        raise ValueError(f"{p}: expected exactly one of segments, points or csv, got {forms}")
+    name = str(data.get("name", p.stem))
+    desc = str(data.get("description", ""))
+    if forms[0] == "segments":
+        pts: Sequence[Sequence[Any]] = _from_segments(data["segments"], str(p))
+    elif forms[0] == "points":
+        if not isinstance(data["points"], list):
+            raise _fail(str(p), "points", "expected a list of [time_s, force_N] pairs")
+        pts = data["points"]
+    else:
+        pts = _read_csv(p.parent / str(data["csv"]), str(p))
+    return from_points(pts, name=name, description=desc, source=str(p), force_limit=force_limit)

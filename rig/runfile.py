@@ -1,0 +1,292 @@
+"""Run files: one HDF5 layout for simulated, synthetic and measured blows.
+
+    /                      attrs: format="rig-run", format_version, kind, status,
+                                  created, software_version, git_commit, host, n_trials
+    /metadata/<name>       text datasets (YAML or JSON): model, profile, rig_config,
+                           calibrations, ... ; attr "format" = yaml | json | text
+    /trial_000/            attrs: status, t0 (s, start of this trial on the run clock)
+        channels/<name>    on one time base, ``time`` first; attrs units, description;
+                           2-D channels (one column per contact) also carry ``columns``
+        commands/<name>    the 500 Hz loop's records (measured runs): time, demand, ...
+        events/<name>      scalar event times (s), NaN if the event did not happen
+
+Every dataset has a ``units`` attribute (SI). Writers append in chunks and flush,
+so a file is readable (with all samples so far) even if the writer dies; the
+root ``status`` is ``running`` until the writer closes it as ``complete`` or
+``aborted: <reason>``. See docs/run-file.md.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import platform
+import subprocess
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from rig import __version__
+
+FORMAT = "rig-run"
+FORMAT_VERSION = 1
+KINDS = ("simulated", "synthetic", "measured")
+
+
+def git_commit() -> str:
+    """The source tree's git commit, or 'unknown' outside a checkout."""
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                             capture_output=True, text=True, timeout=5, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip() or "unknown"
+
+
+def _text(value: Any) -> tuple[str, str]:
+    if isinstance(value, str):
+        return value, "text"
+    return json.dumps(value, indent=1, default=_json_default), "json"
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"cannot store {type(obj).__name__} in run-file metadata")
+
+
+class TrialWriter:
+    """Channels, commands and events of one trial (appendable)."""
+
+    def __init__(self, group: h5py.Group) -> None:
+        self.group = group
+
+    def _dataset(self, section: str, name: str, units: str, description: str,
+                 columns: Iterable[Any] | None, width: int | None) -> h5py.Dataset:
+        grp = self.group.require_group(section)
+        if name in grp:
+            return grp[name]
+        shape = (0,) if width is None else (0, width)
+        maxshape = (None,) if width is None else (None, width)
+        chunks = (4096,) if width is None else (1024, width)
+        ds = grp.create_dataset(name, shape=shape, maxshape=maxshape, dtype="f8", chunks=chunks)
+        ds.attrs["units"] = units
+        if description:
+            ds.attrs["description"] = description
+        if columns is not None:
+            ds.attrs["columns"] = np.asarray(list(columns))
+        return ds
+
+    def append(self, section: str, data: Mapping[str, np.ndarray], units: Mapping[str, str],
+               descriptions: Mapping[str, str] | None = None,
+               columns: Mapping[str, Iterable[Any]] | None = None) -> None:
+        """Append rows to datasets of ``section`` (channels or commands)."""
+        for name, values in data.items():
+            arr = np.asarray(values, dtype=float)
+            if name not in units:
+                raise ValueError(f"{section}/{name}: no units given")
+            width = arr.shape[1] if arr.ndim == 2 else None
+            ds = self._dataset(section, name, units[name], (descriptions or {}).get(name, ""),
+                               (columns or {}).get(name), width)
+            n0 = ds.shape[0]
+            ds.resize(n0 + arr.shape[0], axis=0)
+            ds[n0:] = arr
+
+    def write_events(self, events: Mapping[str, float], descriptions: Mapping[str, str]
+                     | None = None) -> None:
+        grp = self.group.require_group("events")
+        for name, value in events.items():
+            if name in grp:
+                del grp[name]
+            ds = grp.create_dataset(name, data=float(value))
+            ds.attrs["units"] = "s"
+            if descriptions and name in descriptions:
+                ds.attrs["description"] = descriptions[name]
+
+    def set_attrs(self, **attrs: Any) -> None:
+        for key, value in attrs.items():
+            self.group.attrs[key] = value
+
+
+class RunWriter:
+    """Create a run file and fill it; always close it (it is a context manager)."""
+
+    def __init__(self, path: str | Path, kind: str, metadata: Mapping[str, Any] | None = None,
+                 ) -> None:
+        if kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.file = h5py.File(self.path, "w", libver="latest")
+        a = self.file.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["kind"] = kind
+        a["status"] = "running"
+        a["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+        a["software_version"] = __version__
+        a["git_commit"] = git_commit()
+        a["host"] = platform.node()
+        a["n_trials"] = 0
+        self.file.require_group("metadata")
+        for name, value in (metadata or {}).items():
+            self.add_metadata(name, value)
+        self.file.flush()
+
+    def add_metadata(self, name: str, value: Any, fmt: str | None = None) -> None:
+        text, kind = _text(value)
+        grp = self.file["metadata"]
+        if name in grp:
+            del grp[name]
+        ds = grp.create_dataset(name, data=text, dtype=h5py.string_dtype())
+        ds.attrs["format"] = fmt or kind
+
+    def trial(self, index: int | None = None) -> TrialWriter:
+        """The trial group ``trial_NNN`` (a new one by default)."""
+        n = int(self.file.attrs["n_trials"])
+        index = n if index is None else index
+        grp = self.file.require_group(f"trial_{index:03d}")
+        grp.attrs.setdefault("status", "running")
+        self.file.attrs["n_trials"] = max(n, index + 1)
+        return TrialWriter(grp)
+
+    def flush(self) -> None:
+        self.file.flush()
+
+    def close(self, status: str = "complete") -> None:
+        """Mark the run ``complete`` or ``aborted: <reason>`` and close the file."""
+        if not self.file.id.valid:
+            return
+        if not (status == "complete" or status.startswith("aborted")):
+            raise ValueError(f"status: expected 'complete' or 'aborted: <reason>', got {status!r}")
+        self.file.attrs["status"] = status
+        for name in self.file:
+            if name.startswith("trial_") and self.file[name].attrs.get("status") == "running":
+                self.file[name].attrs["status"] = status
+        self.file.close()
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close("complete")
+        elif isinstance(exc, KeyboardInterrupt):
+            self.close("aborted: interrupted (Ctrl-C)")
+        else:
+            self.close(f"aborted: {exc_type.__name__}: {exc}")
+
+
+@dataclass
+class Trial:
+    """One trial read back from a run file."""
+
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    columns: dict[str, np.ndarray]
+    events: dict[str, float]
+    commands: dict[str, np.ndarray] = field(default_factory=dict)
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.channels["time"]
+
+
+@dataclass
+class Run:
+    """A run file's contents."""
+
+    path: Path
+    attrs: dict[str, Any]
+    metadata: dict[str, Any]
+    trials: list[Trial]
+
+    @property
+    def status(self) -> str:
+        return str(self.attrs.get("status", "unknown"))
+
+    @property
+    def kind(self) -> str:
+        return str(self.attrs.get("kind", "unknown"))
+
+
+def _read_section(grp: h5py.Group | None) -> tuple[dict[str, np.ndarray], dict[str, str],
+                                                    dict[str, np.ndarray]]:
+    data: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    cols: dict[str, np.ndarray] = {}
+    if grp is None:
+        return data, units, cols
+    for name, ds in grp.items():
+        data[name] = ds[()]
+        units[name] = str(ds.attrs.get("units", ""))
+        if "columns" in ds.attrs:
+            cols[name] = np.asarray(ds.attrs["columns"])
+    return data, units, cols
+
+
+def read(path: str | Path) -> Run:
+    """Read a whole run file (any status), refusing files that are not run files."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{p}: file not found")
+    try:
+        f = h5py.File(p, "r")
+    except OSError as exc:
+        raise ValueError(f"{p}: not a readable HDF5 file ({exc})") from None
+    with f:
+        if f.attrs.get("format") != FORMAT:
+            raise ValueError(f"{p}: not a rig run file (format attribute is "
+                             f"{f.attrs.get('format')!r})")
+        attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
+        meta: dict[str, Any] = {}
+        for name, ds in f.get("metadata", {}).items():
+            raw = ds[()]
+            text = raw.decode() if isinstance(raw, bytes) else str(raw)
+            meta[name] = json.loads(text) if ds.attrs.get("format") == "json" else text
+        trials = []
+        for name in sorted(n for n in f if n.startswith("trial_")):
+            g = f[name]
+            ch, units, cols = _read_section(g.get("channels"))
+            cmd, cunits, _ = _read_section(g.get("commands"))
+            units.update({f"commands/{k}": v for k, v in cunits.items()})
+            ev = {k: float(v[()]) for k, v in g.get("events", {}).items()}
+            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs)))
+    return Run(p, attrs, meta, trials)
+
+
+def write_result(path: str | Path, result: Any, kind: str = "simulated",
+                 metadata: Mapping[str, Any] | None = None) -> Path:
+    """Write a SimResult (see rig.model.action) as a one-trial run file."""
+    from rig.model.action import CHANNEL_DOCS, EVENT_DOCS
+
+    meta = dict(metadata or {})
+    model = dict(result.metadata.get("model", {}))
+    params_yaml = model.pop("parameters_yaml", None)
+    meta.setdefault("model", model)
+    if params_yaml is not None:
+        meta.setdefault("parameters", params_yaml)
+    if "profile" in result.metadata:
+        meta.setdefault("profile", result.metadata["profile"])
+    meta.setdefault("contacts", {"ids": list(result.contact_ids),
+                                 "names": result.metadata.get("contact_names", [])})
+    meta.setdefault("stats", {k: float(v) for k, v in result.stats.items()})
+    status = "complete" if result.success else f"aborted: {result.message}"
+    with RunWriter(path, kind, meta) as w:
+        tr = w.trial()
+        data = {"time": result.time, **{k: v for k, v in result.channels.items() if k != "time"}}
+        cols = {k: result.contact_ids for k, v in data.items() if np.ndim(v) == 2}
+        tr.append("channels", data, result.units, CHANNEL_DOCS, cols)
+        tr.write_events({k: (v if math.isfinite(v) else math.nan) for k, v in
+                         result.events.items()}, EVENT_DOCS)
+        tr.set_attrs(status=status, t0=0.0)
+        w.close(status)
+    return Path(path)

@@ -1,0 +1,1 @@
+"""Services behind the CLI: simulate, run, calibrate, compare, diagnose."""
