@@ -337,6 +337,12 @@ class ActionModel:
         k.rhs(0.0, np.asarray(y, dtype=float), float(force), self.packed.arrays, ws, dy)
         return dy[k.NQ :].copy()
 
+    def energy(self, y: np.ndarray) -> tuple[float, float, float]:
+        """(kinetic, gravitational potential, shank strain) energy in J at state y."""
+        kin, pot, ela = k.energy(np.asarray(y, dtype=float), self.packed.arrays,
+                                 self._workspace())
+        return float(kin), float(pot), float(ela)
+
     # -- rest state ------------------------------------------------------------------
     def rest_state(self) -> np.ndarray:
         """Static equilibrium under gravity with zero key force (state vector, 18)."""

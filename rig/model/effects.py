@@ -83,6 +83,7 @@ class Effect:
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.parameters}
         self.values: dict[str, float] = {p.name: p.default for p in self.parameters}
+        self.explicit: set[str] = set()  # set by the user; others follow the model's parameters
         for key, value in values.items():
             if key not in known:
                 raise ValueError(f"effect {self.name}: unknown parameter {key!r} "
@@ -103,13 +104,22 @@ class Effect:
             raise ValueError(f"effect {self.name}: parameter {key!r} = {value} is outside its "
                              f"physical bounds [{lo}, {hi}] {spec.units}")
         self.values[key] = float(value)
+        self.explicit.add(key)
 
     # hooks -------------------------------------------------------------------
     def apply(self, build: Build) -> None:
-        """Write mapped parameters into the model's parameter tree."""
+        """Write the user's values of mapped parameters into the model's parameter tree.
+
+        A mapped parameter the user did not set takes the tree's value, so a
+        parameter file and the effect agree on one number.
+        """
         for p in self.parameters:
-            if p.path is not None:
+            if p.path is None:
+                continue
+            if p.name in self.explicit:
                 build.params.set(p.path, self.values[p.name])
+            else:
+                self.values[p.name] = float(build.params.get(p.path))
 
     def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
         return force

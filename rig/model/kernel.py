@@ -546,3 +546,41 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
         curv = 2.0 * y[QV1] + 6.0 * xi * y[QV2]
         out[r, X_STRAIN] = u1 + 0.5 * u1 * u1 - yg * curv + 0.5 * yg * yg * curv * curv
         out[r, X_KEY_LIFT] = y[QYK]
+
+
+@njit(cache=True)
+def energy(y, model, ws):
+    """Kinetic, gravitational and elastic (shank) energy (J) of state y."""
+    sp, sec_xi, cf, cl, jf, me, beam = model
+    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    q = y[:NQ]
+    qd = y[NQ : 2 * NQ]
+    kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
+    for a in range(NQ):
+        Q[a] = 0.0
+        for b in range(NQ):
+            M[a, b] = 0.0
+    g = sp[S_G]
+    pot = 0.0
+    for e in range(me.shape[0]):
+        f = int(me[e, 0])
+        _mass_element(f, me[e, 1], me[e, 2], me[e, 3], me[e, 4], 0.0, cs, w, JO, Jp, aO, al, M, Q)
+        cy = O[f, 1] + cs[f, 1] * me[e, 3] + cs[f, 0] * me[e, 4]
+        pot += me[e, 1] * g * cy
+    elastic = 0.0
+    if sp[S_FLEX] > 0.5:
+        k = O.shape[0] - 1
+        for p in range(beam.shape[0]):
+            _beam_section(beam[p, 0], q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs)
+            _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp, aO, al, M, Q)
+            pot += beam[p, 1] * g * O[k, 1]
+        ln = sp[S_L]
+        v1 = q[QV1]
+        v2 = q[QV2]
+        elastic = 0.5 * sp[S_EA] * ln * q[QU1] * q[QU1] + 0.5 * sp[S_EJ] * (
+            4.0 * ln * v1 * v1 + 12.0 * ln * ln * v1 * v2 + 12.0 * ln * ln * ln * v2 * v2)
+    kin = 0.0
+    for a in range(NQ):
+        for b in range(NQ):
+            kin += 0.5 * qd[a] * M[a, b] * qd[b]
+    return kin, pot, elastic

@@ -1,0 +1,301 @@
+"""The rig configuration: which cards and channels, drive scaling, limits, rates.
+
+A YAML file (``rig.yaml``) validated by pydantic; every field is documented in
+docs/rig-config.md. Bad input raises a one-line ``ValueError`` naming the
+field (``rig.yaml: limits.max_force_n: ...``). SI units throughout; field
+names carry the unit where it is not obvious.
+
+    cfg = config.load("rig.yaml")           # or config.builtin_sim()
+    cfg.backend                              # "ni" or "sim"
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from rig.params import load_yaml_file
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DriveOutput(_Strict):
+    """Analog output (PCI-6229) carrying the torque demand to the drive."""
+
+    physical_channel: str = "Dev1/ao0"
+    min_volts: float = -10.0
+    max_volts: float = 10.0
+
+
+class Pacing(_Strict):
+    """Hardware-timed single-point analog input that paces the 500 Hz loop on NI.
+
+    It must sit on the same card as the drive output (the PCI-6229); any spare
+    input will do: its value is recorded as ``pace_volts`` but not used.
+    """
+
+    physical_channel: str = "Dev1/ai0"
+    start_trigger: str = Field(
+        "/Dev2/ai/StartTrigger",
+        description="terminal of the acquisition card's start trigger (over RTSI) so the loop's "
+                    "tick 0 and the 2 kHz sample 0 coincide; empty to start untriggered")
+
+
+class LoadCell(_Strict):
+    """Full-bridge load cell on the key top (Sensotec Model 13, 25 lb) via SCXI-1520."""
+
+    physical_channel: str = "SC1Mod1/ai0"
+    excitation_volts: float = Field(5.0, gt=0, le=10)
+    bridge_resistance_ohm: float = Field(350.0, gt=0)
+    rated_output_mv_per_v: float = Field(2.0, gt=0, description="bridge output at full scale")
+    full_scale_n: float = Field(111.0, gt=0)
+    input_range_mv_per_v: float = Field(3.0, gt=0, description="+- range of the card channel")
+
+
+class StrainGauge(_Strict):
+    """Quarter-bridge (type I) strain gauge on the hammer shank, 350 ohm, via SCXI-1520."""
+
+    enabled: bool = True
+    physical_channel: str = "SC1Mod1/ai1"
+    excitation_volts: float = Field(2.5, gt=0, le=10)
+    gage_factor: float = Field(2.0, gt=0)
+    nominal_resistance_ohm: float = Field(350.0, gt=0)
+    lead_wire_resistance_ohm: float = Field(0.0, ge=0)
+    input_range_mv_per_v: float = Field(2.0, gt=0)
+
+
+class Encoder(_Strict):
+    """One quadrature encoder on a PCI-6602 counter (x4 decoding)."""
+
+    counter: str
+    body: Literal["key", "whippen", "hammer", "jack", "repetition"]
+    kind: Literal["angular", "linear"]
+    counts_per_rev: float | None = Field(None, gt=0, description="after x4 decoding (angular)")
+    metres_per_count: float | None = Field(None, gt=0, description="after x4 decoding (linear)")
+    sign: Literal[1, -1] = 1
+    initial_value: float = Field(0.0, description="rad or m at count 0 (the pose at start)")
+    channel: str = Field("", description="calibrated channel name; default <body>_angle or "
+                                         "key_dip / <body>_travel")
+
+    @model_validator(mode="after")
+    def _resolution(self) -> Encoder:
+        if self.kind == "angular" and self.counts_per_rev is None:
+            raise ValueError("counts_per_rev: required for an angular encoder")
+        if self.kind == "linear" and self.metres_per_count is None:
+            raise ValueError("metres_per_count: required for a linear encoder")
+        return self
+
+    @property
+    def channel_name(self) -> str:
+        if self.channel:
+            return self.channel
+        if self.kind == "angular":
+            return f"{self.body}_angle"
+        return "key_dip" if self.body == "key" else f"{self.body}_travel"
+
+    @property
+    def units(self) -> str:
+        return "rad" if self.kind == "angular" else "m"
+
+    @property
+    def si_per_count(self) -> float:
+        """Nominal rad or m per count (after x4 decoding)."""
+        if self.kind == "angular":
+            assert self.counts_per_rev is not None
+            return 2 * math.pi / self.counts_per_rev
+        assert self.metres_per_count is not None
+        return self.metres_per_count
+
+
+def _default_encoders() -> dict[str, Encoder]:
+    return {
+        "key": Encoder(counter="Dev3/ctr0", body="key", kind="linear", metres_per_count=0.5e-6),
+        "whippen": Encoder(counter="Dev3/ctr1", body="whippen", kind="angular",
+                           counts_per_rev=327680),
+        "hammer": Encoder(counter="Dev3/ctr2", body="hammer", kind="angular",
+                          counts_per_rev=163840),
+    }
+
+
+class Channels(_Strict):
+    """Physical channels of the three cards."""
+
+    drive_output: DriveOutput = DriveOutput()
+    pacing: Pacing = Pacing()
+    ai_sample_clock: str = Field("/Dev2/ai/SampleClock",
+                                 description="clock source for the encoder counters")
+    load_cell: LoadCell = LoadCell()
+    strain_gauge: StrainGauge = StrainGauge()
+    encoders: dict[str, Encoder] = Field(default_factory=_default_encoders)
+
+    @field_validator("encoders")
+    @classmethod
+    def _three(cls, v: dict[str, Encoder]) -> dict[str, Encoder]:
+        if not v:
+            raise ValueError("expected at least one encoder")
+        names = [e.channel_name for e in v.values()]
+        if len(set(names)) != len(names):
+            raise ValueError(f"two encoders write the same channel: {names}")
+        return v
+
+
+class DriveScaling(_Strict):
+    """Force on the key -> torque -> current -> volts at the drive's analog input.
+
+    volts = force_n * arm_length_m / torque_constant_nm_per_a * volts_per_amp.
+    The torque constant and the drive's input scaling are not in the thesis:
+    set them from the motor's and drive's plates.
+    """
+
+    arm_length_m: float = Field(0.100, gt=0)
+    torque_constant_nm_per_a: float = Field(2.0, gt=0)
+    volts_per_amp: float = Field(10.0 / 6.0, gt=0)
+
+    @property
+    def volts_per_newton(self) -> float:
+        return self.arm_length_m / self.torque_constant_nm_per_a * self.volts_per_amp
+
+
+class Limits(_Strict):
+    """Safety limits applied to every demand and checked on every profile."""
+
+    max_force_n: float = Field(50.0, gt=0, le=120, description="pianists stay under 50 N")
+    max_rate_n_per_s: float = Field(5000.0, gt=0)
+    max_late_cycles_in_a_row: int = Field(5, ge=1)
+    late_threshold_s: float = Field(0.001, gt=0, description="a cycle writing later than this "
+                                                             "after its tick is late")
+
+
+class DriveLink(_Strict):
+    """Serial link to the Kollmorgen ServoStar CE drive; the command set is configurable."""
+
+    port: str = Field("/dev/ttyS0", description="serial device; 'sim' = simulated drive on a pty")
+    baudrate: int = Field(9600, gt=0)
+    timeout_s: float = Field(0.5, gt=0)
+    prompt: str = "-->"
+    enable: str = "EN"
+    disable: str = "DIS"
+    status: str = "DRIVEOK"
+    status_ok: str = "1"
+    active: str = "ACTIVE"
+    fault: str = "ERRCODE"
+    no_fault: str = "0"
+    setup: list[str] = Field(default_factory=list, description="sent once before enabling")
+    poll_period_s: float = Field(0.05, gt=0)
+
+
+class Rates(_Strict):
+    control_hz: float = Field(500.0, gt=0)
+    acquisition_hz: float = Field(2000.0, gt=0)
+
+    @model_validator(mode="after")
+    def _ratio(self) -> Rates:
+        ratio = self.acquisition_hz / self.control_hz
+        if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
+            raise ValueError("acquisition_hz: expected a whole multiple of control_hz")
+        return self
+
+    @property
+    def samples_per_cycle(self) -> int:
+        return int(round(self.acquisition_hz / self.control_hz))
+
+
+class Loop(_Strict):
+    advance_s: float = Field(0.008, ge=0, le=0.1, description="demand leads the profile by this "
+                                                              "(open-loop lag compensation)")
+    rest_s: float = Field(1.0, ge=0, description="rest between trials")
+    settle_s: float = Field(0.1, ge=0, description="zero demand recorded before each trial")
+    controller: str = Field("open_loop", description="open_loop, or module:Class of a controller")
+
+
+class Acquisition(_Strict):
+    read_period_s: float = Field(0.02, gt=0, le=0.5)
+    flush_period_s: float = Field(0.25, gt=0, le=0.5, description="at most 0.5 s: flushed at "
+                                                                  "least twice a second")
+    buffer_s: float = Field(2.0, gt=0, description="card input buffer / simulated FIFO length")
+    start_timeout_s: float = Field(60.0, gt=0)
+
+
+class Sim(_Strict):
+    """The simulated rig (backend: sim)."""
+
+    realtime: bool = True
+    seed: int = 4
+    effects: list[str] = Field(default_factory=lambda: ["flexible_shank"])
+    drive_model: Literal["rise_fall", "all"] = "rise_fall"
+    process_time_unit_s: float = Field(0.002, gt=0, description="unit of Tw and Tp3 (Appendix D)")
+    load_cell_noise_n: float = Field(0.22, ge=0, description="1 sigma; 3 sigma = the 0.67 N spec")
+    load_cell_filter_hz: float = Field(100.0, gt=0)
+    strain_noise: float = Field(2e-6, ge=0, description="1 sigma, m/m")
+    sensor_spread: float = Field(0.02, ge=0, description="relative 1-sigma spread of the true "
+                                                         "sensitivities around nominal")
+
+
+class RigConfig(_Strict):
+    """A whole rig."""
+
+    name: str = "rig"
+    backend: Literal["ni", "sim"]
+    channels: Channels = Channels()
+    drive_scaling: DriveScaling = DriveScaling()
+    limits: Limits = Limits()
+    drive: DriveLink = DriveLink()
+    rates: Rates = Rates()
+    loop: Loop = Loop()
+    acquisition: Acquisition = Acquisition()
+    data_folder: Path = Path("runs")
+    sim: Sim = Sim()
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
+
+
+def _one_line(source: str, exc: ValidationError) -> ValueError:
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err["loc"]) or "(top level)"
+    msg = err["msg"].removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        msg = "unknown field"
+    extra = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
+    return ValueError(f"{source}: {where}: {msg}{extra}")
+
+
+def from_mapping(data: Any, source: str = "rig config") -> RigConfig:
+    """Validate a mapping as a rig configuration (one-line ValueError naming the field)."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{source}: expected a mapping of rig settings, got {type(data).__name__}")
+    try:
+        return RigConfig.model_validate(data)
+    except ValidationError as exc:
+        raise _one_line(source, exc) from None
+
+
+def load(path: str | Path) -> RigConfig:
+    """Load and validate a rig YAML file."""
+    return from_mapping(load_yaml_file(path), str(path))
+
+
+def builtin_sim(**overrides: Any) -> RigConfig:
+    """The built-in simulated rig (used when there is no --rig and no ./rig.yaml)."""
+    data: dict[str, Any] = {"name": "built-in simulated rig", "backend": "sim",
+                            "drive": {"port": "sim"}}
+    data.update(overrides)
+    return from_mapping(data, "built-in simulated rig")
+
+
+def resolve(rig_file: Path | None, cwd: Path | None = None) -> tuple[RigConfig, str]:
+    """The rig to use and a sentence saying which: --rig FILE, ./rig.yaml, else built-in sim."""
+    if rig_file is not None:
+        cfg = load(rig_file)
+        return cfg, f"rig config: {rig_file} ({cfg.backend} backend)"
+    local = (cwd or Path.cwd()) / "rig.yaml"
+    if local.is_file():
+        cfg = load(local)
+        return cfg, f"rig config: ./rig.yaml ({cfg.backend} backend)"
+    return builtin_sim(), "rig config: built-in simulated rig (no --rig and no ./rig.yaml)"

@@ -1,0 +1,81 @@
+"""Force demand -> drive volts: scaling, safety limits, the lag-compensating advance.
+
+The motor presses the key top through a 0.1 m arm, so force and torque are
+interchangeable (thesis Section 2.8): torque = force * arm; the drive turns
+volts into current, the motor current into torque.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rig.config import DriveOutput, DriveScaling, Limits
+from rig.profiles import Profile
+
+
+@dataclass(frozen=True)
+class TorqueScaling:
+    """Demanded key force (N) <-> analog-output volts."""
+
+    volts_per_newton: float
+    min_volts: float
+    max_volts: float
+
+    @classmethod
+    def from_config(cls, scaling: DriveScaling, output: DriveOutput) -> TorqueScaling:
+        return cls(scaling.volts_per_newton, output.min_volts, output.max_volts)
+
+    def volts(self, force_n: float) -> float:
+        """Volts for a force, clipped to the output's range."""
+        return min(self.max_volts, max(self.min_volts, force_n * self.volts_per_newton))
+
+    def force(self, volts: float | np.ndarray) -> float | np.ndarray:
+        return volts / self.volts_per_newton
+
+
+class Limiter:
+    """Clamps each demand to [0, max_force] and its change per cycle to max_rate * dt."""
+
+    def __init__(self, limits: Limits, dt: float) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt: expected a positive cycle time in s, got {dt}")
+        self.max_force = limits.max_force_n
+        self.max_step = limits.max_rate_n_per_s * dt
+        self.last = 0.0
+
+    def reset(self, value: float = 0.0) -> None:
+        self.last = value
+
+    def __call__(self, demand: float) -> tuple[float, bool]:
+        """The limited demand (N) and whether a limit acted."""
+        if not math.isfinite(demand):
+            raise ValueError(f"demand: expected a finite force in N, got {demand}")
+        v = min(self.max_force, max(0.0, demand))
+        v = min(self.last + self.max_step, max(self.last - self.max_step, v))
+        self.last = v
+        return v, abs(v - demand) > 1e-12
+
+
+def check_profile(profile: Profile, limits: Limits, advance_s: float = 0.0) -> None:
+    """Refuse (ValueError naming the point) a profile that exceeds the force or rate limit."""
+    over = np.flatnonzero(profile.force > limits.max_force_n)
+    if over.size:
+        i = int(over[0])
+        raise ValueError(f"{profile.source}: points[{i}] force: {profile.force[i]:g} N is above "
+                         f"the rig's limits.max_force_n of {limits.max_force_n:g} N")
+    rates = np.abs(np.diff(profile.force) / np.diff(profile.time))
+    fast = np.flatnonzero(rates > limits.max_rate_n_per_s * (1 + 1e-9))
+    if fast.size:
+        i = int(fast[0]) + 1
+        raise ValueError(f"{profile.source}: points[{i}]: {rates[i - 1]:g} N/s is faster than the "
+                         f"rig's limits.max_rate_n_per_s of {limits.max_rate_n_per_s:g} N/s")
+    if advance_s < 0:
+        raise ValueError(f"advance_s: expected >= 0 s, got {advance_s}")
+
+
+def feedforward(profile: Profile, t: float, advance_s: float) -> float:
+    """The open-loop demand at trial time t: the profile advance_s ahead (0 before the start)."""
+    return float(profile.at(t + advance_s)) if t + advance_s >= 0 else 0.0

@@ -1,0 +1,49 @@
+"""The hammer-shank strain gauge: quarter bridge (type I), 350 ohm, read as V/V.
+
+NI's quarter-bridge-I conversion, with Vr the change of bridge ratio from the
+unstrained value:  strain = -4 Vr / (GF (1 + 2 Vr)) * (1 + RL / Rg).
+``sensitivity`` below is the gage factor in use and ``offset`` the unstrained
+ratio (V/V); calibration (issue 5) replaces the nominal values.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rig.config import StrainGauge
+
+
+def to_strain(ratio: np.ndarray | float, gage_factor: float, offset: float,
+              lead_wire_ohm: float = 0.0, gauge_ohm: float = 350.0) -> Any:
+    """Bridge ratio (V/V) -> strain (m/m), + = tension."""
+    vr = np.asarray(ratio, dtype=float) - offset
+    return -4.0 * vr / (gage_factor * (1.0 + 2.0 * vr)) * (1.0 + lead_wire_ohm / gauge_ohm)
+
+
+def to_ratio(strain: np.ndarray | float, gage_factor: float, offset: float,
+             lead_wire_ohm: float = 0.0, gauge_ohm: float = 350.0) -> Any:
+    """Strain (m/m) -> bridge ratio (V/V): the inverse of ``to_strain``."""
+    e = np.asarray(strain, dtype=float) / (1.0 + lead_wire_ohm / gauge_ohm)
+    return offset - gage_factor * e / (4.0 + 2.0 * gage_factor * e)
+
+
+def add_ni_channel(task: Any, cfg: StrainGauge, name: str = "strain_gauge") -> None:
+    """Add the gauge to an nidaqmx task as a quarter-bridge V/V channel (350 ohm)."""
+    from nidaqmx.constants import BridgeConfiguration, BridgeUnits, ExcitationSource
+
+    r = cfg.input_range_mv_per_v * 1e-3
+    task.ai_channels.add_ai_bridge_chan(
+        cfg.physical_channel, name_to_assign_to_channel=name, min_val=-r, max_val=r,
+        units=BridgeUnits.VOLTS_PER_VOLT, bridge_config=BridgeConfiguration.QUARTER_BRIDGE,
+        voltage_excit_source=ExcitationSource.INTERNAL, voltage_excit_val=cfg.excitation_volts,
+        nominal_bridge_resistance=cfg.nominal_resistance_ohm)
+
+
+def ni_calibrate(task: Any, cfg: StrainGauge, name: str = "strain_gauge",
+                 shunt_resistor_ohm: float = 100000.0) -> None:
+    """Offset nulling and shunt calibration; bridge_resistance must be 350 (NI defaults to 120)."""
+    task.perform_bridge_offset_nulling_cal(channel=name)
+    task.perform_bridge_shunt_cal(channel=name, shunt_resistor_value=shunt_resistor_ohm,
+                                  bridge_resistance=cfg.nominal_resistance_ohm)

@@ -1,0 +1,78 @@
+"""Run files written by `rig simulate`, read back; the CLI's messages."""
+
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from rig import runfile
+from rig.cli import app
+from rig.model.action import CHANNEL_UNITS, EVENT_ORDER
+
+ROOT_CHANNELS = ("time", "force", "key_angle", "whippen_angle", "jack_angle", "repetition_angle",
+                 "hammer_angle", "hammer_head_velocity", "contact_force")
+
+
+def test_result_round_trip(tmp_path, forte_rigid):
+    path = runfile.write_result(tmp_path / "r.h5", forte_rigid)
+    run = runfile.read(path)
+    assert run.status == "complete" and run.kind == "simulated"
+    trial = run.trials[0]
+    for name in ROOT_CHANNELS:
+        np.testing.assert_array_equal(trial.channels[name], forte_rigid.channels[name])
+        assert trial.units[name] == CHANNEL_UNITS[name]
+    assert list(trial.columns["contact_force"]) == list(range(1, 15))
+    assert trial.events["strike"] == forte_rigid.events["strike"]
+    assert "contacts:" in run.metadata["parameters"]  # the full parameter set
+    assert run.metadata["profile"]["name"] == "forte"
+    assert run.metadata["model"]["effects"] == []
+    with h5py.File(path) as f:  # every dataset carries its units
+        f.visititems(lambda n, o: isinstance(o, h5py.Dataset) and not n.startswith("metadata")
+                     and _has_units(n, o))
+
+
+def _has_units(name, obj):
+    assert "units" in obj.attrs, name
+
+
+def test_an_aborted_writer_leaves_a_readable_file(tmp_path):
+    with pytest.raises(KeyboardInterrupt), runfile.RunWriter(tmp_path / "a.h5", "measured") as w:
+        tr = w.trial()
+        tr.append("channels", {"time": np.arange(5) / 2000}, {"time": "s"})
+        w.flush()
+        raise KeyboardInterrupt
+    run = runfile.read(tmp_path / "a.h5")
+    assert run.status.startswith("aborted: interrupted")
+    assert run.trials[0].channels["time"].size == 5
+
+
+def test_read_refuses_other_files(tmp_path):
+    with pytest.raises(ValueError, match="not found"):
+        runfile.read(tmp_path / "missing.h5")
+    (tmp_path / "x.h5").write_text("not hdf5")
+    with pytest.raises(ValueError, match="not a readable HDF5"):
+        runfile.read(tmp_path / "x.h5")
+
+
+def test_cli_simulate_writes_a_run_and_a_summary(tmp_path):
+    out = tmp_path / "forte.h5"
+    result = CliRunner().invoke(app, ["simulate", "profiles/forte.yaml", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "strike at" in result.output and f"wrote {out}" in result.output
+    run = runfile.read(out)
+    assert all(math.isfinite(run.trials[0].events[n]) for n in EVENT_ORDER)
+
+
+def test_cli_refuses_a_bad_profile_in_one_line(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("points: [[0, 0], [0.01, 300]]\n")
+    result = CliRunner().invoke(app, ["simulate", str(bad), "--out", str(tmp_path / "o.h5")])
+    assert result.exit_code == 2
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert lines == [f"error: {bad}: points[1] force: 300.0 N is above the force limit of "
+                     f"120.0 N"]
+    assert not (tmp_path / "o.h5").exists()
