@@ -237,3 +237,71 @@ def test_every_library_effect_documents_itself():
         assert issubclass(cls, Effect)
         for p in cls.parameters:
             assert p.units and p.bounds[0] <= p.default <= p.bounds[1]
+
+
+@pytest.fixture(scope="module")
+def short_base(forte):
+    return ActionModel().simulate(forte, duration=0.15)
+
+
+def shift_ms(res, base, name="strike"):
+    return (res.events[name] - base.events[name]) * 1e3
+
+
+def test_drive_dynamics_delays_and_load_cell_filter_advances_the_blow(forte, short_base):
+    late = ActionModel(effects=[{"drive_dynamics": {"delay": 0.004}}]).simulate(forte, 0.15)
+    early = ActionModel(effects=[{"load_cell_filter": {"cutoff": 100.0}}]).simulate(forte, 0.15)
+    assert 4.0 < shift_ms(late, short_base) < 8.0  # dead time plus the low-pass's lag
+    # a 4-pole Butterworth at 100 Hz delays by 2.6131 / (2 pi 100) s = 4.16 ms
+    assert shift_ms(early, short_base) == pytest.approx(-4.16, abs=0.05)
+
+
+def test_key_encoder_misreads_only_the_key_while_it_lifts(forte):
+    lift_only = ActionModel(effects=["key_liftoff"]).simulate(forte, 0.15)
+    misread = ActionModel(effects=["key_encoder_misread"]).simulate(forte, 0.15)
+    np.testing.assert_allclose(misread.channels["hammer_angle"],
+                               lift_only.channels["hammer_angle"], atol=1e-12)
+    lift = lift_only.channels["key_lift"] - lift_only.channels["key_lift"][0]
+    err = misread.channels["key_angle"] - lift_only.channels["key_angle"]
+    np.testing.assert_allclose(err, 63.0 * lift, atol=1e-12)
+    assert np.abs(err).max() > 1e-3
+
+
+def test_backcheck_law_changes_only_the_check(forte, short_base):
+    stiff = ActionModel(effects=[{"backcheck_law": {"stiffness_scale": 5.0, "friction": 0.1}}])
+    res = stiff.simulate(forte, 0.15)
+    t = res.time
+    before = t < short_base.events["backcheck_catch"] - 1e-3
+    after = t > short_base.events["backcheck_catch"] + 5e-3
+    diff = np.abs(res.channels["hammer_angle"] - short_base.channels["hammer_angle"])
+    assert diff[before].max() < 1e-9
+    assert diff[after].max() > 1e-3
+
+
+def test_felt_hysteresis_and_compliant_string_change_the_string_contact(forte, short_base):
+    soft = ActionModel(effects=[{"compliant_string": {"stiffness": 2e4}}]).simulate(forte, 0.15)
+    base_contact = short_base.events["string_release"] - short_base.events["strike"]
+    assert soft.events["string_release"] - soft.events["strike"] > 1.5 * base_contact
+    hyst = ActionModel(effects=["felt_hysteresis"]).simulate(forte, 0.15)
+    assert hyst.success
+    assert abs(shift_ms(hyst, short_base, "backcheck_catch")) > 1.0
+
+
+def test_contact_laws_against_their_definitions():
+    from rig.model import kernel as kk
+
+    a, b, c, d = 1.81e10, 8.19e7, 1.16e4, 0.8
+    law = np.zeros(kk.N_LAW)
+    law[[kk.L_A, kk.L_B, kk.L_C, kk.L_D]] = a, b, c, d
+
+    def fit(x):
+        return a * x**3 + b * x**2 + c * x
+
+    law[kk.L_TYPE], law[kk.L_P1], law[kk.L_P2] = kk.LAW_HYSTERETIC, 0.3, 1e-3
+    assert kk.normal_force_law(4e-4, 0.5, law) == pytest.approx(1.3 * fit(4e-4), rel=1e-6)
+    assert kk.normal_force_law(4e-4, -0.5, law) == pytest.approx(0.7 * fit(4e-4), rel=1e-6)
+    law[kk.L_TYPE], law[kk.L_P1] = kk.LAW_SERIES_SPRING, 5e4
+    f = kk.normal_force_law(1e-3, 0.0, law)
+    felt = 1e-3 - f / 5e4  # the felt's share of the penetration
+    assert f == pytest.approx(fit(felt), rel=1e-9)
+    assert f < fit(1e-3)  # in series: softer than the felt alone

@@ -477,7 +477,9 @@ class ActionModel:
             e.add_channels(res)
         for e in self.effects:
             e.measure(res)
-        damping = {int(c["id"]): float(c["D"]) for c in self.build.params.tree["contacts"]}
+        cl = self.packed.arrays[3]
+        damping = {cid: (0.0 if int(cl[i, k.L_TYPE]) == k.LAW_HYSTERETIC else float(cl[i, k.L_D]))
+                   for i, cid in enumerate(self.packed.contact_ids)}
         res.events = find_events(res, damping=damping)
         res.metadata["model"] = self.describe()
         res.metadata["contact_names"] = list(self.packed.contact_names)

@@ -117,12 +117,13 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
             [_feature(params, c["first"], sections, length),
              _feature(params, c["second"], sections, length)]
         )
-        law = np.zeros(9)
+        law = np.zeros(k.N_LAW)
         law[k.L_A], law[k.L_B], law[k.L_C], law[k.L_D] = c["a"], c["b"], c["c"], c["D"]
         law[k.L_MU_A], law[k.L_B1], law[k.L_B2] = c["A"], c["B1"], c["B2"]
         law[k.L_VT] = vt.get(cid, 0.01)
         on = cid != 14 or liftoff  # contact 14 (balance rail) exists only with lift-off
         law[k.L_ON] = 1.0 if on else 0.0
+        law[k.L_TYPE] = k.LAW_HUNT_CROSSLEY
         cl_rows.append(law)
     cf = np.array(cf_rows, dtype=float)
     cl = np.array(cl_rows, dtype=float)

@@ -196,7 +196,189 @@ class KeyLiftoff(Effect):
         build.flags["liftoff"] = True
 
 
-BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (FlexibleShank, KeyLiftoff)}
+def _uniform(time: np.ndarray, force: np.ndarray) -> float:
+    dt = np.diff(time)
+    if dt.size == 0 or np.ptp(dt) > 1e-9 * max(1.0, float(dt.mean())):
+        raise ValueError("transform_input: expected force on a uniform time grid")
+    return float(dt.mean())
+
+
+def _shift(time: np.ndarray, force: np.ndarray, delay: float) -> np.ndarray:
+    """force(t - delay), held at the end values outside the record."""
+    return np.interp(time - delay, time, force)
+
+
+class DriveDynamics(Effect):
+    """The drive, motor and arm between the recorded force and the key."""
+
+    name = "drive_dynamics"
+    summary = ("The force reaching the key lags the recorded force (a demand, or a force "
+               "measured upstream) through a dead time and a second-order low-pass: the "
+               "drive's current loop, the motor and the arm (thesis Appendix D: ~8 ms).")
+    parameters = (
+        EffectParameter("delay", "s", 0.0, (0.0, 0.03), True, "dead time"),
+        EffectParameter("bandwidth", "Hz", 80.0, (5.0, 1000.0), True,
+                        "natural frequency of the second-order lag"),
+        EffectParameter("damping_ratio", "1", 0.7, (0.2, 2.0), False,
+                        "damping ratio of the second-order lag"),
+    )
+    signature = Signature(
+        ("key_angle", "whippen_angle", "hammer_angle"), ("key descent",), "lag",
+        None, "every body moves later than the model driven by the recorded force; strike, "
+        "let-off and key-bottom times shift later by several ms, strike speed barely changes")
+
+    def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
+        from scipy import signal
+
+        dt = _uniform(time, force)
+        shifted = _shift(time, force, self.values["delay"])
+        wn = 2 * np.pi * self.values["bandwidth"]
+        z = self.values["damping_ratio"]
+        num, den = signal.bilinear([wn * wn], [1.0, 2 * z * wn, wn * wn], fs=1.0 / dt)
+        zi = signal.lfilter_zi(num, den) * shifted[0]
+        out, _ = signal.lfilter(num, den, shifted, zi=zi)
+        return np.asarray(out)
+
+
+class LoadCellFilter(Effect):
+    """The load cell's conditioning filter between the key force and its record."""
+
+    name = "load_cell_filter"
+    summary = ("The recorded force is the key force after the SCXI-1520's 4-pole Butterworth "
+               "low-pass (100 Hz in the thesis), so it lags the force on the key; the model "
+               "is driven by the record advanced by the filter's low-frequency group delay.")
+    parameters = (
+        EffectParameter("cutoff", "Hz", 100.0, (10.0, 2000.0), True, "filter cut-off"),
+    )
+    signature = Signature(
+        ("key_angle", "whippen_angle", "hammer_angle"), ("key descent",), "lag", None,
+        "the bodies move EARLIER than the model driven by the recorded force, by ~4 ms at "
+        "100 Hz; event times shift earlier")
+
+    #: group delay at low frequency of a 4-pole Butterworth, times its cut-off (rad)
+    GROUP_DELAY_RAD = 2.6131
+
+    def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
+        _uniform(time, force)
+        tau = self.GROUP_DELAY_RAD / (2 * np.pi * self.values["cutoff"])
+        return _shift(time, force, -tau)
+
+
+class KeyEncoderMisread(Effect):
+    """The key's encoder misreads while the key bounces on its balance rail."""
+
+    name = "key_encoder_misread"
+    summary = ("The key's circular scale is centred on the balance-rail pivot; when the key "
+               "lifts off the rail the scale's centre moves and the encoder reads a false "
+               "rotation proportional to the lift (thesis Section 4.2, Fig. 4.12). Needs and "
+               "switches on key lift-off.")
+    parameters = (
+        EffectParameter("sensitivity", "rad/m", 63.0, (-500.0, 500.0), True,
+                        "false rotation per metre of lift (1/scale radius for a head level "
+                        "with the centre; R3213: 15.9 mm)"),
+    )
+    signature = Signature(
+        ("key_angle",), ("check", "release"), "shape", None,
+        "spikes in the measured key angle alone (the other encoders disagree) when the key "
+        "bottoms and when it falls back on the rail")
+
+    def apply(self, build: Build) -> None:
+        super().apply(build)
+        build.flags["liftoff"] = True
+
+    def measure(self, result: SimResult) -> None:
+        lift = result.channels.get("key_lift")
+        if lift is None:
+            return
+        result.channels["key_angle"] = (result.channels["key_angle"]
+                                        + self.values["sensitivity"] * (lift - lift[0]))
+
+
+class BackcheckLaw(Effect):
+    """A different contact and friction law where the back check catches the hammer."""
+
+    name = "backcheck_law"
+    summary = ("Contact 4 (back check - hammer tail) with its own stiffness, damping and "
+               "friction: the thesis blames this contact for its strain mismatch while the "
+               "hammer is held (Section 4.1.5).")
+    parameters = (
+        EffectParameter("stiffness_scale", "1", 1.0, (0.05, 20.0), True,
+                        "scale on the felt's stiffness polynomial"),
+        EffectParameter("friction", "1", 0.434, (0.0, 1.5), True,
+                        "kinetic friction coefficient A", "contacts.4.A"),
+        EffectParameter("damping", "s/m", 2.446, (0.0, 50.0), True, "damping factor D",
+                        "contacts.4.D"),
+    )
+    signature = Signature(
+        ("hammer_angle", "shank_strain"), ("check",), "bias", None,
+        "a steady offset of the hammer angle and the shank's static bending while the back "
+        "check holds the hammer; a different catch time and rebound")
+
+    def apply(self, build: Build) -> None:
+        super().apply(build)
+        scale = self.values["stiffness_scale"]
+        for coef in ("a", "b", "c"):
+            build.params.set(f"contacts.4.{coef}", build.params.get(f"contacts.4.{coef}") * scale)
+
+
+FELT_CONTACTS = tuple(range(1, 14))
+
+
+class FeltHysteresis(Effect):
+    """Rate-independent felt hysteresis in place of speed-dependent damping."""
+
+    name = "felt_hysteresis"
+    summary = ("Every felt contact loads along (1 + h) f_fit(x) and unloads along "
+               "(1 - h) f_fit(x) whatever the speed (Stamm's observation; the thesis's open "
+               "question), instead of f_fit(x)(1 + D xdot).")
+    parameters = (
+        EffectParameter("ratio", "1", 0.3, (0.0, 0.95), True, "hysteresis ratio h"),
+        EffectParameter("speed_scale", "m/s", 1e-3, (1e-5, 0.05), False,
+                        "penetration speed over which loading turns into unloading"),
+    )
+    signature = Signature(
+        ("hammer_angle", "key_angle"), ("string contact", "check", "release"), "shape", None,
+        "slow contacts dissipate as much as fast ones: softer blows rebound less and hard "
+        "blows more than the damped model says; string contact time and the hammer's rebound "
+        "speed change most")
+
+    def apply(self, build: Build) -> None:
+        super().apply(build)
+        from rig.model import kernel as k
+
+        for cid in FELT_CONTACTS:
+            build.contact_overrides[(cid, k.L_TYPE)] = float(k.LAW_HYSTERETIC)
+            build.contact_overrides[(cid, k.L_P1)] = self.values["ratio"]
+            build.contact_overrides[(cid, k.L_P2)] = self.values["speed_scale"]
+
+
+class CompliantString(Effect):
+    """A compliant string (a spring in series with the hammer felt) in place of the bar."""
+
+    name = "compliant_string"
+    summary = ("The string yields under the hammer like a spring in series with the felt "
+               "(contact 12), instead of the rigid bar of the thesis's rig.")
+    parameters = (
+        EffectParameter("stiffness", "N/m", 5e4, (1e3, 1e8), True,
+                        "the string's stiffness at the strike point"),
+    )
+    signature = Signature(
+        ("hammer_angle", "shank_strain", "hammer_head_velocity"), ("string contact",),
+        "timing", None,
+        "a longer string contact and a later, slower rebound; the flight back to the check "
+        "starts later")
+
+    def apply(self, build: Build) -> None:
+        super().apply(build)
+        from rig.model import kernel as k
+
+        build.contact_overrides[(12, k.L_TYPE)] = float(k.LAW_SERIES_SPRING)
+        build.contact_overrides[(12, k.L_P1)] = self.values["stiffness"]
+
+
+BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (
+    FlexibleShank, KeyLiftoff, DriveDynamics, LoadCellFilter, KeyEncoderMisread, BackcheckLaw,
+    FeltHysteresis, CompliantString)}
 
 
 def register(cls: type[Effect]) -> type[Effect]:

@@ -377,6 +377,9 @@ def by_name(name: str, rtol: float = 1e-6, max_step: float = 2e-4) -> Integrator
         return DormandPrince(rtol=rtol, max_step=max_step)
     if name == "rk4":
         return RungeKutta4()
+    if name == "rosenbrock":
+        from rig.model.integrators_stiff import Rosenbrock
+        return Rosenbrock(rtol=rtol, max_step=max_step)
     if name.startswith("scipy-"):
         return ScipyIntegrator(method=name.split("-", 1)[1], rtol=rtol, max_step=max_step)
     raise ValueError(f"integrator: expected dopri54, rk4 or scipy-<method>, got {name!r}")

@@ -67,9 +67,19 @@ _GAMMA = np.array([
 ])
 _B = np.array([0.24212380706095346, -1.2232505839045147, 1.5452602553351020, _G])
 _BHAT = np.array([0.37810903145819369, -0.096042292212423178, 0.5, 0.2179332607542295])
-ROS34PW2 = _transformed(_ALPHA, _GAMMA, _B, _BHAT)
-ROS34PW2_GAMMA = _G
-ROS34PW2_ORDER = 3  # error estimate is O(h^3)
+ROS_A, ROS_C, ROS_M, ROS_E, ROS_ALPHA, ROS_GSUM = _transformed(_ALPHA, _GAMMA, _B, _BHAT)
+ROS_GAMMA = _G
+
+# Dormand-Prince 5(4) (the same pair as DormandPrince), for the explicit steps
+DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
+DP_A = np.zeros((6, 6))
+DP_A[1, 0] = 1 / 5
+DP_A[2, :2] = 3 / 40, 9 / 40
+DP_A[3, :3] = 44 / 45, -56 / 15, 32 / 9
+DP_A[4, :4] = 19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729
+DP_A[5, :5] = 9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656
+DP_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
+DP_E = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
 
 
 @njit(cache=True)
@@ -149,7 +159,7 @@ def jacobian(t, y, fy, fkey, model, ws, act, JA, JB, gk, ytmp, ftmp):
         for jj in range(na):
             col = act[jj] + half * nq
             yj = y[col]
-            d = 1.5e-8 * max(abs(yj), 1e-3)
+            d = 1.5e-8 * max(abs(yj), 1e-3 if half == 0 else 0.1)
             ytmp[col] = yj + d
             d = ytmp[col] - yj
             k.rhs(t, ytmp, fkey, model, ws, ftmp)
@@ -169,14 +179,50 @@ def jacobian(t, y, fy, fkey, model, ws, act, JA, JB, gk, ytmp, ftmp):
 
 
 @njit(cache=True)
-def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t, out_y,
-            max_steps, act, JA, JB, gk, jac_state, jac_reuse, a, c, m, e, alpha, gsum, gam,
-            order):
-    """Adaptive Rosenbrock-W steps from t0 to t1 with Hermite output at out_t.
+def _spectral_radius(JA, JB, na, v, w):
+    """|lambda|max of J = [[0, I], [JA, JB]] by 24 power iterations (works for pairs)."""
+    for i in range(2 * na):
+        v[i] = 1.0
+    logsum = 0.0
+    cnt = 0
+    for it in range(24):
+        nrm = 0.0
+        for i in range(na):
+            acc = 0.0
+            for j in range(na):
+                acc += JA[i, j] * v[j] + JB[i, j] * v[na + j]
+            w[i] = v[na + i]
+            w[na + i] = acc
+        for i in range(2 * na):
+            nrm += w[i] * w[i]
+        nrm = math.sqrt(nrm)
+        if nrm == 0.0 or not math.isfinite(nrm):
+            return 0.0
+        if it >= 8:
+            logsum += math.log(nrm)
+            cnt += 1
+        for i in range(2 * na):
+            v[i] = w[i] / nrm
+    return math.exp(logsum / cnt)
 
-    JA, JB, gk hold the Jacobian on entry when jac_state[0] > 0 (it is then
-    reused) and the latest one on exit; jac_state[0] counts the steps it served.
+
+# state slots kept between calls
+ST_AGE, ST_MODE, ST_HEXP, ST_STIFF, ST_SLOW = range(5)
+
+
+@njit(cache=True)
+def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t, out_y,
+            max_steps, act, JA, JB, gk, state, jac_reuse, refresh_age, switching, to_implicit,
+            to_explicit, trace):
+    """Adaptive steps from t0 to t1 with Hermite output at out_t.
+
+    Rosenbrock-W (ROS34PW2) steps; with ``switching``, Dormand-Prince 5(4) steps
+    wherever those are cheaper (accuracy, not stability, limits the step).
+    JA, JB, gk hold the Jacobian on entry when state[ST_AGE] > 0 (it is then
+    reused) and the latest one on exit.
     """
+    a, c, m, e, alpha, gsum = ROS_A, ROS_C, ROS_M, ROS_E, ROS_ALPHA, ROS_GSUM
+    gam = ROS_GAMMA
     n = y0.shape[0]
     nq = k.NQ
     na = act.shape[0]
@@ -189,9 +235,12 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     ynew = np.empty(n)
     r = np.empty(n)
     U = np.zeros((s, n))
+    K = np.zeros((6, n))
     S = np.empty((na, na))
     piv = np.zeros(na, dtype=np.int64)
     x = np.empty(na)
+    pv = np.empty(2 * na)
+    pw = np.empty(2 * na)
     ftmp = np.empty(n)
     ytmp = np.empty(n)
     hint = np.zeros(1, dtype=np.int64)
@@ -213,95 +262,159 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     status = 0
     err_old = 1e-4
     h_prop = h
-    age = jac_state[0]
+    age = int(state[ST_AGE])
+    implicit = state[ST_MODE] > 0.5 or not switching
+    h_exp = state[ST_HEXP]
+    stiff = int(state[ST_STIFF])
+    slow = int(state[ST_SLOW])
     fresh = False
     while t < t1:
         if steps + rejected >= max_steps:
             status = -3
             break
-        if age <= 0 or age >= jac_reuse:
+        if implicit and (age <= 0 or age >= jac_reuse):
             n_rhs += jacobian(t, y, f0, fk, model, ws, act, JA, JB, gk, ytmp, ftmp)
             n_jac += 1
             age = 0
             fresh = True
+            if switching:
+                rho = _spectral_radius(JA, JB, na, pv, pw)
+                h_exp = 3.0 / rho if rho > 0.0 else hmax
         last = False
         if t + h >= t1 - 1e-15:
             h_prop = h
             h = t1 - t
             last = True
-        # S = g^2 I - g B - A, g = 1/(h gamma)
-        g = 1.0 / (h * gam)
-        for ii in range(na):
-            for jj in range(na):
-                S[ii, jj] = -g * JB[ii, jj] - JA[ii, jj]
-            S[ii, ii] += g * g
-        ok = _lu(S, piv, na)
-        slope = _force_slope(t, force_t, force_f)
-        finite = ok
-        for st in range(s):
-            if not finite:
-                break
-            if st == 0:
+        err = 0.0
+        imax = -1
+        finite = True
+        hlamb = 0.0
+        if implicit:
+            order = 3.0
+            # S = g^2 I - g B - A, g = 1/(h gamma)
+            g = 1.0 / (h * gam)
+            for ii in range(na):
+                for jj in range(na):
+                    S[ii, jj] = -g * JB[ii, jj] - JA[ii, jj]
+                S[ii, ii] += g * g
+            finite = _lu(S, piv, na)
+            slope = _force_slope(t, force_t, force_f)
+            for st in range(s):
+                if not finite:
+                    break
+                if st == 0:
+                    for i in range(n):
+                        fs[i] = f0[i]
+                else:
+                    for i in range(n):
+                        acc = y[i]
+                        for q in range(st):
+                            acc += a[st, q] * U[q, i]
+                        yt[i] = acc
+                    ts = t + alpha[st] * h
+                    k.rhs(ts, yt, force_at(ts, force_t, force_f, hint), model, ws, fs)
+                    n_rhs += 1
                 for i in range(n):
-                    fs[i] = f0[i]
-            else:
+                    acc = fs[i] + h * gsum[st] * slope * gk[i]
+                    for q in range(st):
+                        acc += c[st, q] / h * U[q, i]
+                    r[i] = acc
+                # reduced solve on the active coordinates
+                for ii in range(na):
+                    acc = g * r[nq + act[ii]]
+                    for jj in range(na):
+                        acc += JA[ii, jj] * r[act[jj]]
+                    x[ii] = acc
+                _lu_solve(S, piv, x, na)
+                for i in range(n):
+                    U[st, i] = 0.0
+                for ii in range(na):
+                    qi = act[ii]
+                    U[st, nq + qi] = x[ii]
+                    U[st, qi] = (r[qi] + x[ii]) / g
+                for ii in range(na):
+                    if not math.isfinite(x[ii]):
+                        finite = False
+            if finite:
+                emax = -1.0
+                for i in range(n):
+                    acc = y[i]
+                    ea = 0.0
+                    for st in range(s):
+                        acc += m[st] * U[st, i]
+                        ea += e[st] * U[st, i]
+                    ynew[i] = acc
+                    sc = atol[i] + rtol * max(abs(y[i]), abs(acc))
+                    err += (ea / sc) ** 2
+                    if abs(ea / sc) > emax:
+                        emax = abs(ea / sc)
+                        imax = i
+        else:
+            order = 5.0
+            for st in range(1, 6):
                 for i in range(n):
                     acc = y[i]
                     for q in range(st):
-                        acc += a[st, q] * U[q, i]
+                        acc += h * DP_A[st, q] * (f0[i] if q == 0 else K[q, i])
                     yt[i] = acc
-                ts = t + alpha[st] * h
+                ts = t + DP_C[st] * h
                 k.rhs(ts, yt, force_at(ts, force_t, force_f, hint), model, ws, fs)
-                n_rhs += 1
+                for i in range(n):
+                    K[st, i] = fs[i]
             for i in range(n):
-                acc = fs[i] + h * gsum[st] * slope * gk[i]
-                for q in range(st):
-                    acc += c[st, q] / h * U[q, i]
-                r[i] = acc
-            # reduced solve on the active coordinates
-            for ii in range(na):
-                acc = g * r[nq + act[ii]]
-                for jj in range(na):
-                    acc += JA[ii, jj] * r[act[jj]]
-                x[ii] = acc
-            _lu_solve(S, piv, x, na)
+                acc = f0[i] * DP_B[0]
+                for q in range(1, 6):
+                    acc += DP_B[q] * K[q, i]
+                ynew[i] = y[i] + h * acc
+            tn = t + h
+            k.rhs(tn, ynew, force_at(tn, force_t, force_f, hint), model, ws, f1)
+            n_rhs += 6
+            stnum = 0.0
+            stden = 0.0
+            emax = -1.0
             for i in range(n):
-                U[st, i] = 0.0
-            for ii in range(na):
-                qi = act[ii]
-                U[st, nq + qi] = x[ii]
-                U[st, qi] = (r[qi] + x[ii]) / g
-            for ii in range(na):
-                if not math.isfinite(x[ii]):
-                    finite = False
-        err = 0.0
-        if finite:
-            for i in range(n):
-                acc = y[i]
-                ea = 0.0
-                for st in range(s):
-                    acc += m[st] * U[st, i]
-                    ea += e[st] * U[st, i]
-                ynew[i] = acc
-                sc = atol[i] + rtol * max(abs(y[i]), abs(acc))
+                ea = f0[i] * DP_E[0] + DP_E[6] * f1[i]
+                for q in range(1, 6):
+                    ea += DP_E[q] * K[q, i]
+                ea *= h
+                sc = atol[i] + rtol * max(abs(y[i]), abs(ynew[i]))
                 err += (ea / sc) ** 2
+                if abs(ea / sc) > emax:
+                    emax = abs(ea / sc)
+                    imax = i
+                if not math.isfinite(ynew[i]):
+                    finite = False
+                # Hairer's stiffness test: last two stages share t + h
+                stnum += (f1[i] - K[5, i]) ** 2
+                stden += (ynew[i] - yt[i]) ** 2
+            if stden > 0.0:
+                hlamb = h * math.sqrt(stnum / stden)
+        if finite:
             err = math.sqrt(err / n)
             if not math.isfinite(err):
                 finite = False
+        nt = steps + rejected
+        if nt < trace.shape[0]:
+            trace[nt, 0] = t
+            trace[nt, 1] = h
+            trace[nt, 2] = err
+            trace[nt, 3] = imax
+            trace[nt, 4] = age if implicit else -1.0
         if not finite:
             if h <= hmin:
                 status = -2
                 break
             h *= 0.1
             rejected += 1
-            if not fresh:
+            if implicit and not fresh:
                 age = 0
             continue
         if err <= 1.0:
             tn = t1 if last else t + h
             fk1 = force_at(tn, force_t, force_f, hint)
-            k.rhs(tn, ynew, fk1, model, ws, f1)
-            n_rhs += 1
+            if implicit:
+                k.rhs(tn, ynew, fk1, model, ws, f1)
+                n_rhs += 1
             while j < n_out and out_t[j] <= tn:
                 _hermite(t, tn - t, y, f0, ynew, f1, out_t[j], out_y, j)
                 j += 1
@@ -311,7 +424,8 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                 y[i] = ynew[i]
                 f0[i] = f1[i]
             steps += 1
-            age += 1
+            if implicit:
+                age += 1
             fresh = False
             # PI controller (Gustafsson) for an error of order h^order
             if err > 0.0:
@@ -323,43 +437,80 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
             h = min(h * fac, hmax)
             if last:
                 h = min(max(h, h_prop), hmax)
+            if switching:
+                if implicit:
+                    # explicit steps are cheaper once accuracy holds the step this low
+                    slow = slow + 1 if h < to_explicit * h_exp else 0
+                    if slow >= 3:
+                        implicit = False
+                        slow = 0
+                        stiff = 0
+                        h = min(h, h_exp)
+                        err_old = 1e-4
+                else:
+                    if hlamb > 3.25:
+                        stiff += 1
+                    elif stiff > 0:
+                        stiff -= 1
+                    if stiff >= to_implicit:
+                        implicit = True
+                        stiff = 0
+                        age = 0
+                        h_exp = h
+                        h = min(2.0 * h, hmax)
+                        err_old = 1e-4
         else:
             h *= max(0.2, 0.9 * err ** (-1.0 / order))
             rejected += 1
-            if not fresh:
+            if implicit and age >= refresh_age:
                 age = 0  # a stale Jacobian may be the cause: refresh before retrying
             if h < hmin:
                 status = -1
                 break
-    jac_state[0] = age
+    state[ST_AGE] = age
+    state[ST_MODE] = 1.0 if implicit else 0.0
+    state[ST_HEXP] = h_exp
+    state[ST_STIFF] = stiff
+    state[ST_SLOW] = slow
     return y, t, h, steps, rejected, n_rhs, n_jac, status, j
 
 
 @dataclass
 class Rosenbrock:
-    """Adaptive Rosenbrock-W ROS34PW2 with a reused finite-difference Jacobian, compiled.
+    """Adaptive Rosenbrock-W (ROS34PW2) with a reused finite-difference Jacobian, compiled.
 
-    ``jac_reuse``: accepted steps one Jacobian may serve (a rejected step
-    refreshes it sooner).
+    With ``switching`` (the default) it also takes Dormand-Prince steps while
+    those are the cheaper ones, i.e. where accuracy rather than stiffness holds
+    the step down (Hairer's stiffness test switches to the implicit steps; an
+    implicit step below ``to_explicit`` times the explicit stability limit,
+    estimated from the Jacobian's spectral radius, switches back).
+    ``jac_reuse``: accepted steps one Jacobian may serve; a rejected step
+    refreshes a Jacobian that served ``refresh_age`` steps or more.
     """
 
     rtol: float = 1e-6
     max_step: float = 1e-3
     max_steps: int = 5_000_000
     jac_reuse: int = 20
+    refresh_age: int = 3
+    switching: bool = True
+    to_implicit: int = 10
+    to_explicit: float = 0.6
     name: str = field(default="rosenbrock", init=False)
     n_jac: int = field(default=0, init=False)
     _cache: Any = field(default=None, init=False, repr=False)
+    _trace: Any = field(default_factory=lambda: np.zeros((0, 5)), init=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (0 < self.rtol < 1):
             raise ValueError(f"rtol: expected a number in (0, 1), got {self.rtol}")
         if not self.max_step > 0:
             raise ValueError(f"max_step: expected a positive time in s, got {self.max_step}")
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps: expected a positive count, got {self.max_steps}")
-        if self.jac_reuse < 1:
-            raise ValueError(f"jac_reuse: expected a positive count, got {self.jac_reuse}")
+        for name in ("max_steps", "jac_reuse", "refresh_age", "to_implicit"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected a positive count, got {getattr(self, name)}")
+        if not self.to_explicit > 0:
+            raise ValueError(f"to_explicit: expected a positive ratio, got {self.to_explicit}")
 
     def advance(self, model, ws, y0, t0, t1, step, force_t, force_f, out_t, atol,
                 extra_force=None):
@@ -370,18 +521,19 @@ class Rosenbrock:
         c = self._cache
         if (c is not None and c[0] is model and c[1] == t0 and c[3].shape[0] == na
                 and np.array_equal(c[2], y0)):
+            # this call continues the last one: keep its Jacobian and mode
             JA, JB, gk, state = c[3], c[4], c[5], c[6]
         else:
             JA = np.zeros((na, na))
             JB = np.zeros((na, na))
             gk = np.zeros(y0.shape[0])
-            state = np.zeros(1, dtype=np.int64)
+            state = np.zeros(5)
+            state[ST_MODE] = 1.0  # start implicit: the rest state is stiff
         out = np.empty((out_t.shape[0], y0.shape[0]))
-        a, cc, m, e, alpha, gsum = ROS34PW2
-        y, t, h, steps, rej, nrhs, njac, status, nfill = ros_run(
+        y, _t, h, steps, rej, nrhs, njac, status, nfill = ros_run(
             model, ws, y0, t0, t1, step, force_t, force_f, self.rtol, atol, self.max_step,
-            out_t, out, self.max_steps, act, JA, JB, gk, state, self.jac_reuse, a, cc, m, e,
-            alpha, gsum, ROS34PW2_GAMMA, float(ROS34PW2_ORDER))
+            out_t, out, self.max_steps, act, JA, JB, gk, state, self.jac_reuse,
+            self.refresh_age, self.switching, self.to_implicit, self.to_explicit, self._trace)
         self.n_jac += njac
         self._cache = (model, t1, y.copy(), JA, JB, gk, state) if status == 0 else None
         return Advance(y, out[:nfill], h, steps, rej, nrhs, status)

@@ -57,7 +57,12 @@ N_SP = 29
 JOINT_COORD = (QK, QW, QJ, QR, QH)
 
 # contact law columns (cl)
-L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON = range(9)
+L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON, L_TYPE, L_P1, L_P2 = range(12)
+N_LAW = 12
+# normal-law types (L_TYPE): the thesis's Hunt-Crossley fit; rate-independent hysteresis
+# (L_P1 = loading/unloading ratio h, L_P2 = velocity scale); in series with a massless
+# spring of stiffness L_P1 (a compliant string)
+LAW_HUNT_CROSSLEY, LAW_HYSTERETIC, LAW_SERIES_SPRING = 0, 1, 2
 # contact feature columns (cf[i, side, :])
 C_KIND, C_FRAME, C_X, C_Y, C_NX, C_NY, C_R, C_A0, C_A1 = range(9)
 
@@ -315,6 +320,40 @@ def normal_force(pen, pen_rate, a, b, c, d):
     return f if f > 0.0 else 0.0
 
 
+@njit(cache=True, inline="always")
+def normal_force_law(pen, pen_rate, law):
+    """Normal force (N) of one contact under its law row (see LAW_* types)."""
+    kind = int(law[L_TYPE])
+    a, b, c = law[L_A], law[L_B], law[L_C]
+    if kind == LAW_HYSTERETIC:
+        # loading follows (1 + h) f_fit, unloading (1 - h) f_fit, whatever the speed
+        if pen <= 0.0:
+            return 0.0
+        f = (a * pen * pen * pen + b * pen * pen + c * pen) * (
+            1.0 + law[L_P1] * math.tanh(pen_rate / law[L_P2]))
+        return f if f > 0.0 else 0.0
+    if kind == LAW_SERIES_SPRING:
+        # felt (penetration x_f) in series with a spring k: f_fit(x_f) = k (pen - x_f)
+        if pen <= 0.0:
+            return 0.0
+        k = law[L_P1]
+        xf = pen * 0.5
+        for _ in range(30):
+            g = a * xf * xf * xf + b * xf * xf + c * xf - k * (pen - xf)
+            dg = 3.0 * a * xf * xf + 2.0 * b * xf + c + k
+            step = g / dg
+            xf -= step
+            if xf < 0.0:
+                xf = 0.0
+            elif xf > pen:
+                xf = pen
+            if abs(step) < 1e-15:
+                break
+        f = k * (pen - xf) * (1.0 + law[L_D] * pen_rate)
+        return f if f > 0.0 else 0.0
+    return normal_force(pen, pen_rate, a, b, c, law[L_D])
+
+
 @njit(cache=True)
 def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
     """Add every contact's normal and friction force to Q; fill cout per contact.
@@ -343,7 +382,7 @@ def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
         tx = -ny
         ty = nx
         slip = tx * rvx + ty * rvy
-        fn = normal_force(pen, pen_rate, cl[i, L_A], cl[i, L_B], cl[i, L_C], cl[i, L_D])
+        fn = normal_force_law(pen, pen_rate, cl[i])
         ft = 0.0
         if fn > 0.0 and cl[i, L_MU_A] > 0.0:
             ft = -fn * friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
