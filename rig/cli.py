@@ -35,7 +35,8 @@ def simulate(
     integrator: Annotated[str | None, typer.Option(
         help="dopri54 (default), rk4, or scipy-<method> e.g. scipy-BDF")] = None,
     output_rate: Annotated[float | None, typer.Option(help="channel rate, Hz")] = None,
-    force_limit: Annotated[float, typer.Option(help="refuse profiles above this force, N")] = 120.0,
+    force_limit: Annotated[float, typer.Option(
+        help="refuse profiles above this force, N")] = 120.0,
 ) -> None:
     """Simulate one blow of the action under PROFILE and write a run file."""
     from rig.services import simulate as svc
@@ -94,6 +95,52 @@ def list_effects() -> None:
             fit = " (fitted)" if p.fitted else ""
             console.print(f"  - {p.name} = {p.default:g} {p.units} in [{p.bounds[0]:g}, "
                           f"{p.bounds[1]:g}]{fit}: {p.description}")
+
+
+# ---- rig run (issue 4): the torque loop and acquisition; the work is in rig.services.run ----
+@app.command("run")
+def run_profile(
+    profile: Annotated[Path, typer.Argument(help="force profile (YAML or CSV)")],
+    rig: Annotated[Path | None, typer.Option(
+        "--rig", help="rig config YAML (default ./rig.yaml, else the built-in simulated rig)")
+    ] = None,
+    trials: Annotated[int, typer.Option(help="repeat the profile N times, resting between")] = 1,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="run file to write (.h5); "
+                                             "default <data_folder>/<time>-<profile>.h5")] = None,
+    lockstep: Annotated[bool, typer.Option(
+        help="simulated rig only: step as fast as possible instead of in real time")] = False,
+) -> None:
+    """Press the key with PROFILE on the rig and record everything into a run file."""
+    from rig import config as rig_config
+    from rig.services import run as svc
+
+    try:
+        cfg, which = rig_config.resolve(rig)
+    except ValueError as exc:
+        raise _fail(exc) from None
+    console.print(which, markup=False, highlight=False, soft_wrap=True)
+    try:
+        report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
+                         on_line=lambda s: console.print(s, markup=False, highlight=False, soft_wrap=True))
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    lat = report.lateness
+    console.print(f"loop: {int(lat['cycles'])} cycles at {cfg.rates.control_hz:g} Hz, lateness "
+                  f"median {lat['median_s'] * 1e3:.3f} ms, p99 {lat['p99_s'] * 1e3:.3f} ms, "
+                  f"max {lat['max_s'] * 1e3:.3f} ms, missed {int(lat['missed'])}, late "
+                  f"{int(lat['late_cycles'])}", markup=False, highlight=False, soft_wrap=True)
+    if report.samples is not None:
+        console.print(f"acquisition: {report.samples} samples at "
+                      f"{cfg.rates.acquisition_hz:g} Hz, no gap", markup=False, highlight=False, soft_wrap=True)
+    for name, r in report.repeatability.items():
+        console.print(f"repeatability {name}: trial-to-trial RMS deviation {r['rms_deviation']:.3g} "
+                      f"({r['relative'] * 100:.2f} % of its range)", markup=False, highlight=False, soft_wrap=True)
+    if not report.complete:
+        err.print(f"run {report.status}", markup=False, highlight=False, soft_wrap=True)
+    console.print(f"wrote {report.path}", markup=False, highlight=False, soft_wrap=True)
+    if not report.complete:
+        raise typer.Exit(code=1)
+# ---- end of rig run ----
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -545,7 +545,8 @@ class Stepper:
             self.h = adv.step
         else:
             self.status = adv.status
-            self.message = f"{adv.message} near t = {self.t + (times[-1] - self.t if n else 0):.6f} s"
+            reached = times[-1] if n else self.t
+            self.message = f"{adv.message} near t = {reached:.6f} s"
         return Chunk(times, adv.out, forces, adv.status, adv.message)
 
     def result(self) -> SimResult:

@@ -170,17 +170,17 @@ def shank_first_mode(arrays: tuple[np.ndarray, ...], n_frames: int, params: Para
     ws = k.make_workspace(n_frames, arrays[2].shape[0])
     y = np.zeros(k.NY)
     y[k.QH] = params.get("initial_state.theta_h")
-    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx = ws
-    k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays[1], O, phi, w, vO, JO, Jp, aO, al, cs)
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx = ws
+    k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays[1], org, phi, w, vO, JO, Jp, aO, al, cs)
     idx = [k.QH, k.QU1, k.QV1, k.QV2]
     mm = np.zeros((k.NQ, k.NQ))
     qq = np.zeros(k.NQ)
     for e in range(arrays[5].shape[0]):
         f, m, inertia, cx, cy = arrays[5][e]
         k._mass_element(int(f), m, inertia, cx, cy, 0.0, cs, w, JO, Jp, aO, al, mm, qq)
-    kf = O.shape[0] - 1
+    kf = org.shape[0] - 1
     for p in range(arrays[6].shape[0]):
-        k._beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, O, phi, w, vO, JO, Jp,
+        k._beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, org, phi, w, vO, JO, Jp,
                         aO, al, cs)
         k._mass_element(kf, arrays[6][p, 1], arrays[6][p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
                         aO, al, mm, qq)

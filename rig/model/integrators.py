@@ -16,8 +16,8 @@ returned ``step`` so a caller that advances in 2 ms pieces continues smoothly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np

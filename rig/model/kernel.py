@@ -13,9 +13,10 @@ Generalized coordinates (always 9; those of effects that are off stay frozen):
     8 v2       shank bending coordinate, x^3 term (1/m^2)        [flexible_shank]
 
 The mass matrix is block diagonal (key | whippen, jack, repetition | hammer and
-shank); each block is assembled and solved on its own. State y = [q (9), qdot (9)]. Each body is a frame with origin O, angle phi and
-their Jacobians; forces enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T,
-and velocity-product terms through each frame's bias acceleration. Everything
+shank); each block is assembled and solved on its own. State y = [q (9), qdot (9)].
+Each body is a frame with origin org, angle phi and their Jacobians; forces
+enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T, and velocity-product
+terms through each frame's bias acceleration. Everything
 is scalar code so numba compiles it; with NUMBA_DISABLE_JIT=1 the same code runs
 as plain Python/numpy (the reference implementation of the benchmark).
 """
@@ -89,7 +90,7 @@ def _rot(phi, x, y):
 
 
 @njit(cache=True, inline="always")
-def _beam_section(xi, q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs):
+def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs):
     """Frame k = cross-section of the shank at distance xi from its root."""
     th = q[QH]
     wh = qd[QH]
@@ -113,8 +114,8 @@ def _beam_section(xi, q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs):
     px = sp[S_ROOTX] + dx * a + nx * b
     py = sp[S_ROOTY] + dy * a + ny * b
     rpx, rpy = _rot(th, px, py)
-    O[k, 0] = sp[S_PG3X] + rpx
-    O[k, 1] = sp[S_PG3Y] + rpy
+    org[k, 0] = sp[S_PG3X] + rpx
+    org[k, 1] = sp[S_PG3Y] + rpy
     slope = 2.0 * xi * v1 + 3.0 * xi2 * v2
     phi[k] = th + sg * slope
     cs[k, 0] = math.cos(phi[k])
@@ -157,11 +158,11 @@ def _beam_section(xi, q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs):
 
 
 @njit(cache=True, inline="always")
-def _child_frame(k, parent, px, py, q_own, qd_own, O, phi, w, vO, JO, Jp, aO, al, qi):
+def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, al, qi):
     """Frame k pinned at parent-frame point (px, py), turning by coordinate qi."""
     rx, ry = _rot(phi[parent], px, py)
-    O[k, 0] = O[parent, 0] + rx
-    O[k, 1] = O[parent, 1] + ry
+    org[k, 0] = org[parent, 0] + rx
+    org[k, 1] = org[parent, 1] + ry
     wp = w[parent]
     lo, hi = _block(k)
     for j in range(lo, hi):
@@ -179,12 +180,12 @@ def _child_frame(k, parent, px, py, q_own, qd_own, O, phi, w, vO, JO, Jp, aO, al
 
 
 @njit(cache=True)
-def kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs):
+def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
     """Fill every frame's pose, velocity, Jacobians and bias accelerations."""
-    nf = O.shape[0]
+    nf = org.shape[0]
     for k in range(nf):
-        O[k, 0] = 0.0
-        O[k, 1] = 0.0
+        org[k, 0] = 0.0
+        org[k, 1] = 0.0
         phi[k] = 0.0
         w[k] = 0.0
         vO[k, 0] = 0.0
@@ -195,44 +196,42 @@ def kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs):
     # Jacobian entries outside a frame's coordinate block stay zero from make_workspace
     # and are never read.
     # key pivot (massless body when lift-off is on)
-    O[F_PIVOT, 1] = sp[S_PIVY0] + q[QYK]
+    org[F_PIVOT, 1] = sp[S_PIVY0] + q[QYK]
     if sp[S_LIFTOFF] > 0.5:
         JO[F_PIVOT, 1, QYK] = 1.0
         vO[F_PIVOT, 1] = qd[QYK]
-    _child_frame(F_KEY, F_PIVOT, 0.0, 0.0, q[QK], qd[QK], O, phi, w, vO, JO, Jp, aO, al, QK)
+    _child_frame(F_KEY, F_PIVOT, 0.0, 0.0, q[QK], qd[QK], org, phi, w, vO, JO, Jp, aO, al, QK)
     # whippen on its ground pivot
-    O[F_WHIPPEN, 0] = sp[S_PG2X]
-    O[F_WHIPPEN, 1] = sp[S_PG2Y]
+    org[F_WHIPPEN, 0] = sp[S_PG2X]
+    org[F_WHIPPEN, 1] = sp[S_PG2Y]
     phi[F_WHIPPEN] = q[QW]
     w[F_WHIPPEN] = qd[QW]
     Jp[F_WHIPPEN, QW] = 1.0
-    _child_frame(
-        F_JACK, F_WHIPPEN, sp[S_PW2X], sp[S_PW2Y], q[QJ], qd[QJ], O, phi, w, vO, JO, Jp, aO, al, QJ
-    )
-    _child_frame(
-        F_REP, F_WHIPPEN, sp[S_PW3X], sp[S_PW3Y], q[QR], qd[QR], O, phi, w, vO, JO, Jp, aO, al, QR
-    )
+    _child_frame(F_JACK, F_WHIPPEN, sp[S_PW2X], sp[S_PW2Y], q[QJ], qd[QJ],
+                 org, phi, w, vO, JO, Jp, aO, al, QJ)
+    _child_frame(F_REP, F_WHIPPEN, sp[S_PW3X], sp[S_PW3Y], q[QR], qd[QR],
+                 org, phi, w, vO, JO, Jp, aO, al, QR)
     # hammer base on its ground pivot
-    O[F_HAMMER, 0] = sp[S_PG3X]
-    O[F_HAMMER, 1] = sp[S_PG3Y]
+    org[F_HAMMER, 0] = sp[S_PG3X]
+    org[F_HAMMER, 1] = sp[S_PG3Y]
     phi[F_HAMMER] = q[QH]
     w[F_HAMMER] = qd[QH]
     Jp[F_HAMMER, QH] = 1.0
     # head: carried at the shank's free end (its frame origin is the shank tip)
-    _beam_section(sp[S_L], q, qd, sp, F_HEAD, O, phi, w, vO, JO, Jp, aO, al, cs)
+    _beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs)
     for s in range(sec_xi.shape[0]):
-        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, O, phi, w, vO, JO, Jp, aO, al, cs)
+        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al, cs)
     for f in range(F_HEAD):
         cs[f, 0] = math.cos(phi[f])
         cs[f, 1] = math.sin(phi[f])
 
 
 @njit(cache=True, inline="always")
-def _add_point_force(f, px, py, fx, fy, O, JO, Jp, Q):
+def _add_point_force(f, px, py, fx, fy, org, JO, Jp, Q):
     if f == F_GROUND:
         return
-    rx = px - O[f, 0]
-    ry = py - O[f, 1]
+    rx = px - org[f, 0]
+    ry = py - org[f, 1]
     mom = rx * fy - ry * fx
     lo, hi = _block(f)
     for j in range(lo, hi):
@@ -240,7 +239,7 @@ def _add_point_force(f, px, py, fx, fy, O, JO, Jp, Q):
 
 
 @njit(cache=True, inline="always")
-def _feature_world(cf, i, side, O, cs):
+def _feature_world(cf, i, side, org, cs):
     f = int(cf[i, side, C_FRAME])
     c = cs[f, 0]
     s = cs[f, 1]
@@ -248,16 +247,16 @@ def _feature_world(cf, i, side, O, cs):
     y = cf[i, side, C_Y]
     nx = cf[i, side, C_NX]
     ny = cf[i, side, C_NY]
-    return f, O[f, 0] + c * x - s * y, O[f, 1] + s * x + c * y, c * nx - s * ny, s * nx + c * ny
+    return f, org[f, 0] + c * x - s * y, org[f, 1] + s * x + c * y, c * nx - s * ny, s * nx + c * ny
 
 
 @njit(cache=True, inline="always")
-def contact_geometry(cf, i, O, phi, cs):
+def contact_geometry(cf, i, org, phi, cs):
     """Penetration (m), unit normal from body 1 to body 2, and contact point."""
     k1 = int(cf[i, 0, C_KIND])
     k2 = int(cf[i, 1, C_KIND])
-    f1, x1, y1, n1x, n1y = _feature_world(cf, i, 0, O, cs)
-    f2, x2, y2, n2x, n2y = _feature_world(cf, i, 1, O, cs)
+    f1, x1, y1, n1x, n1y = _feature_world(cf, i, 0, org, cs)
+    f2, x2, y2, n2x, n2y = _feature_world(cf, i, 1, org, cs)
     r1 = cf[i, 0, C_R]
     r2 = cf[i, 1, C_R]
     if k1 == K_LINE:  # line on body 1, circle on body 2
@@ -355,7 +354,7 @@ def normal_force_law(pen, pen_rate, law):
 
 
 @njit(cache=True)
-def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
+def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
     With ``full`` false, separated contacts get only their penetration (the
@@ -366,16 +365,16 @@ def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
             for j in range(N_CONTACT_OUT):
                 cout[i, j] = 0.0
             continue
-        f1, f2, pen, nx, ny, px, py = contact_geometry(cf, i, O, phi, cs)
+        f1, f2, pen, nx, ny, px, py = contact_geometry(cf, i, org, phi, cs)
         cout[i, O_PEN] = pen
         if pen <= 0.0 and not full:
             cout[i, O_FN] = 0.0
             cout[i, O_FT] = 0.0
             continue
-        v1x = vO[f1, 0] - w[f1] * (py - O[f1, 1])
-        v1y = vO[f1, 1] + w[f1] * (px - O[f1, 0])
-        v2x = vO[f2, 0] - w[f2] * (py - O[f2, 1])
-        v2y = vO[f2, 1] + w[f2] * (px - O[f2, 0])
+        v1x = vO[f1, 0] - w[f1] * (py - org[f1, 1])
+        v1y = vO[f1, 1] + w[f1] * (px - org[f1, 0])
+        v2x = vO[f2, 0] - w[f2] * (py - org[f2, 1])
+        v2y = vO[f2, 1] + w[f2] * (px - org[f2, 0])
         rvx = v2x - v1x
         rvy = v2y - v1y
         pen_rate = -(nx * rvx + ny * rvy)
@@ -385,12 +384,13 @@ def contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full):
         fn = normal_force_law(pen, pen_rate, cl[i])
         ft = 0.0
         if fn > 0.0 and cl[i, L_MU_A] > 0.0:
-            ft = -fn * friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
+            mu = friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
+            ft = -fn * mu
         if fn > 0.0:
             fx = fn * nx + ft * tx
             fy = fn * ny + ft * ty
-            _add_point_force(f2, px, py, fx, fy, O, JO, Jp, Q)
-            _add_point_force(f1, px, py, -fx, -fy, O, JO, Jp, Q)
+            _add_point_force(f2, px, py, fx, fy, org, JO, Jp, Q)
+            _add_point_force(f1, px, py, -fx, -fy, org, JO, Jp, Q)
         cout[i, O_PENRATE] = pen_rate
         cout[i, O_FN] = fn
         cout[i, O_FT] = ft
@@ -461,7 +461,7 @@ def _solve(M, b, x, lo, n):
 def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
     """Scratch arrays for one evaluation (allocated once per integration)."""
     return (
-        np.zeros((n_frames, 2)),  # O
+        np.zeros((n_frames, 2)),  # org
         np.zeros(n_frames),  # phi
         np.zeros(n_frames),  # w
         np.zeros((n_frames, 2)),  # vO
@@ -482,10 +482,10 @@ def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
 def accelerations(t, y, f_key, model, ws, full):
     """Generalized accelerations for state y under key force f_key (N, downward)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
-    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
     q = y[:NQ]
     qd = y[NQ : 2 * NQ]
-    kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
+    kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     for a in range(NQ):
         Q[a] = 0.0
         for b in range(NQ):
@@ -497,9 +497,9 @@ def accelerations(t, y, f_key, model, ws, full):
                       cs, w, JO, Jp, aO, al, M, Q)
     # flexible shank: Gauss particles (xi, mass, rotary inertia) on a scratch frame
     if sp[S_FLEX] > 0.5:
-        k = O.shape[0] - 1
+        k = org.shape[0] - 1
         for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs)
+            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
             _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, g, cs, w, JO, Jp, aO, al, M, Q)
         ea = sp[S_EA]
         ej = sp[S_EJ]
@@ -512,7 +512,7 @@ def accelerations(t, y, f_key, model, ws, full):
         Q[QV1] -= ej * (4.0 * ln * v1 + 6.0 * ln * ln * v2)
         Q[QV2] -= ej * (6.0 * ln * ln * v1 + 12.0 * ln * ln * ln * v2)
     # contacts
-    contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, full)
+    contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full)
     # pin-joint friction and springs
     for jn in range(5):
         c = JOINT_COORD[jn]
@@ -522,7 +522,7 @@ def accelerations(t, y, f_key, model, ws, full):
     # finger / motor force on the key top, straight down
     kx = cs[F_KEY, 0] * sp[S_KEYPX] - cs[F_KEY, 1] * sp[S_KEYPY]
     ky = cs[F_KEY, 1] * sp[S_KEYPX] + cs[F_KEY, 0] * sp[S_KEYPY]
-    _add_point_force(F_KEY, O[F_KEY, 0] + kx, O[F_KEY, 1] + ky, 0.0, -f_key, O, JO, Jp, Q)
+    _add_point_force(F_KEY, org[F_KEY, 0] + kx, org[F_KEY, 1] + ky, 0.0, -f_key, org, JO, Jp, Q)
     for a in range(NQ):
         Q[a] += qx[a]
     # frozen coordinates
@@ -560,11 +560,11 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     the strain gauge. out gets the X_* columns, cout_all every contact's outputs.
     """
     sp, sec_xi, cf, cl, jf, me, beam = model
-    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
     for r in range(Y.shape[0]):
         y = Y[r]
-        kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
-        contacts(cf, cl, O, phi, cs, w, vO, JO, Jp, Q, cout, True)
+        kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
+        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True)
         for i in range(cout.shape[0]):
             for j in range(N_CONTACT_OUT):
                 cout_all[r, i, j] = cout[i, j]
@@ -572,11 +572,10 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
         hy = cs[F_HEAD, 1] * head_pt[0] + cs[F_HEAD, 0] * head_pt[1]
         out[r, X_HEAD_VX] = vO[F_HEAD, 0] - w[F_HEAD] * hy
         out[r, X_HEAD_VY] = vO[F_HEAD, 1] + w[F_HEAD] * hx
-        out[r, X_HEAD_X] = O[F_HEAD, 0] + hx
-        out[r, X_HEAD_Y] = O[F_HEAD, 1] + hy
-        kx = cs[F_KEY, 0] * sp[S_KEYPX] - cs[F_KEY, 1] * sp[S_KEYPY]
+        out[r, X_HEAD_X] = org[F_HEAD, 0] + hx
+        out[r, X_HEAD_Y] = org[F_HEAD, 1] + hy
         ky = cs[F_KEY, 1] * sp[S_KEYPX] + cs[F_KEY, 0] * sp[S_KEYPY]
-        out[r, X_KEYTOP_Y] = O[F_KEY, 1] + ky
+        out[r, X_KEYTOP_Y] = org[F_KEY, 1] + ky
         ln = sp[S_L]
         out[r, X_TIP_DEFL] = ln * ln * y[QV1] + ln * ln * ln * y[QV2]
         xi = gauge[0]
@@ -591,10 +590,10 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
 def energy(y, model, ws):
     """Kinetic, gravitational and elastic (shank) energy (J) of state y."""
     sp, sec_xi, cf, cl, jf, me, beam = model
-    O, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
     q = y[:NQ]
     qd = y[NQ : 2 * NQ]
-    kinematics(q, qd, sp, sec_xi, O, phi, w, vO, JO, Jp, aO, al, cs)
+    kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     for a in range(NQ):
         Q[a] = 0.0
         for b in range(NQ):
@@ -604,15 +603,15 @@ def energy(y, model, ws):
     for e in range(me.shape[0]):
         f = int(me[e, 0])
         _mass_element(f, me[e, 1], me[e, 2], me[e, 3], me[e, 4], 0.0, cs, w, JO, Jp, aO, al, M, Q)
-        cy = O[f, 1] + cs[f, 1] * me[e, 3] + cs[f, 0] * me[e, 4]
+        cy = org[f, 1] + cs[f, 1] * me[e, 3] + cs[f, 0] * me[e, 4]
         pot += me[e, 1] * g * cy
     elastic = 0.0
     if sp[S_FLEX] > 0.5:
-        k = O.shape[0] - 1
+        k = org.shape[0] - 1
         for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, O, phi, w, vO, JO, Jp, aO, al, cs)
+            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
             _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp, aO, al, M, Q)
-            pot += beam[p, 1] * g * O[k, 1]
+            pot += beam[p, 1] * g * org[k, 1]
         ln = sp[S_L]
         v1 = q[QV1]
         v2 = q[QV2]
