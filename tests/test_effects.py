@@ -305,3 +305,27 @@ def test_contact_laws_against_their_definitions():
     felt = 1e-3 - f / 5e4  # the felt's share of the penetration
     assert f == pytest.approx(fit(felt), rel=1e-9)
     assert f < fit(1e-3)  # in series: softer than the felt alone
+
+
+def test_key_pin_friction_damps_the_lift(forte):
+    free = lifts(ActionModel(effects=["key_liftoff"]).simulate(forte))
+    held = lifts(ActionModel(effects=[{"key_liftoff": {"pin_friction": 2.0}}]).simulate(forte))
+    assert held[0] < free[0] - 5e-5 and held[1] < 0.5 * free[1]
+
+
+def test_kernel_edits_invalidate_dependent_caches(tmp_path):
+    """numba keys caches per file: rig.model drops integrator caches older than the kernel."""
+    import os
+    from pathlib import Path
+
+    import rig.model as rm
+
+    cache = Path(rm.__file__).parent / "__pycache__"
+    kernel = Path(rm.__file__).parent / "kernel.py"
+    fake = cache / "integrators.fake-1.py311.nbi"
+    cache.mkdir(exist_ok=True)
+    fake.write_bytes(b"")
+    old = kernel.stat().st_mtime - 100
+    os.utime(fake, (old, old))
+    rm._drop_stale_caches()
+    assert not fake.exists()

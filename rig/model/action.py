@@ -231,7 +231,7 @@ class ActionModel:
         num = build.params.tree["numerics"]
         self.python_forces = [e for e in self.effects if e.has_generalized_force()]
         if integrator is None:
-            integrator = by_name("scipy-LSODA" if self.python_forces else "dopri54",
+            integrator = by_name("scipy-LSODA" if self.python_forces else "rosenbrock",
                                  rtol=num["rtol"], max_step=num["max_step"])
         self.integrator = integrator
         self.output_rate = float(output_rate or num["output_rate_hz"])

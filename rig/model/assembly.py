@@ -128,11 +128,13 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     cf = np.array(cf_rows, dtype=float)
     cl = np.array(cl_rows, dtype=float)
 
-    jf = np.zeros((5, 4))
+    jf = np.zeros((6, 4))
     wt = t["friction_threshold"]["joint_wt"]
     for i, name in enumerate(JOINTS):
         spec = t["joint_friction"][name]
         jf[i] = spec["E"], spec["F1"], spec["F2"], wt[name]
+    pin = t["key_pin_friction"]
+    jf[5] = pin["force"], 0.0, 0.0, pin["speed_scale"]
 
     b = t["bodies"]
     me_rows = []

@@ -180,6 +180,9 @@ class KeyLiftoff(Effect):
                         "damping factor D of contact 14", "contacts.14.D"),
         EffectParameter("stiffness_scale", "1", 1.0, (0.05, 20.0), False,
                         "scale on contact 14's stiffness polynomial (a, b, c)"),
+        EffectParameter("pin_friction", "N", 0.0, (0.0, 10.0), True,
+                        "friction of the key bushing on the balance-rail pin while the key "
+                        "slides up and down", "key_pin_friction.force"),
     )
     signature = Signature(
         ("key_angle", "key_dip"), ("check", "release"), "oscillation", None,

@@ -372,7 +372,7 @@ class ScipyIntegrator:
 
 
 def by_name(name: str, rtol: float = 1e-6, max_step: float = 2e-4) -> Integrator:
-    """Integrator from a CLI/YAML name: dopri54, rk4, or scipy-<method>."""
+    """Integrator from a CLI/YAML name: rosenbrock, dopri54, rk4, or scipy-<method>."""
     if name == "dopri54":
         return DormandPrince(rtol=rtol, max_step=max_step)
     if name == "rk4":
@@ -382,4 +382,5 @@ def by_name(name: str, rtol: float = 1e-6, max_step: float = 2e-4) -> Integrator
         return Rosenbrock(rtol=rtol, max_step=max_step)
     if name.startswith("scipy-"):
         return ScipyIntegrator(method=name.split("-", 1)[1], rtol=rtol, max_step=max_step)
-    raise ValueError(f"integrator: expected dopri54, rk4 or scipy-<method>, got {name!r}")
+    raise ValueError(f"integrator: expected rosenbrock, dopri54, rk4 or scipy-<method>, got "
+                     f"{name!r}")

@@ -428,10 +428,7 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                 age += 1
             fresh = False
             # PI controller (Gustafsson) for an error of order h^order
-            if err > 0.0:
-                fac = 0.9 * err ** (-0.7 / order) * err_old ** (0.4 / order)
-            else:
-                fac = 5.0
+            fac = 0.9 * err ** (-0.7 / order) * err_old ** (0.4 / order) if err > 0.0 else 5.0
             fac = min(5.0, max(0.2, fac))
             err_old = max(err, 1e-4)
             h = min(h * fac, hmax)
@@ -499,6 +496,8 @@ class Rosenbrock:
     name: str = field(default="rosenbrock", init=False)
     n_jac: int = field(default=0, init=False)
     _cache: Any = field(default=None, init=False, repr=False)
+    # diagnostics: give it rows to record (t, h, error, worst component, Jacobian age
+    # or -1 for an explicit step) of each attempted step of the next call
     _trace: Any = field(default_factory=lambda: np.zeros((0, 5)), init=False, repr=False)
 
     def __post_init__(self) -> None:

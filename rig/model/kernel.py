@@ -54,8 +54,9 @@ S_JACK_T, S_REP_K, S_REP_TH0 = 24, 25, 26
 S_LIFTOFF, S_FLEX = 27, 28
 N_SP = 29
 
-# joint friction rows (jf): key, whippen, jack, repetition, hammer ; cols E, F1, F2, wt
-JOINT_COORD = (QK, QW, QJ, QR, QH)
+# joint friction rows (jf): key, whippen, jack, repetition, hammer, key slider on its
+# balance-rail pin (lift-off; force in N, speed in m/s) ; cols E, F1, F2, wt
+JOINT_COORD = (QK, QW, QJ, QR, QH, QYK)
 
 # contact law columns (cl)
 L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON, L_TYPE, L_P1, L_P2 = range(12)
@@ -514,7 +515,7 @@ def accelerations(t, y, f_key, model, ws, full):
     # contacts
     contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full)
     # pin-joint friction and springs
-    for jn in range(5):
+    for jn in range(6):
         c = JOINT_COORD[jn]
         Q[c] -= joint_torque(qd[c], jf[jn, 0], jf[jn, 1], jf[jn, 2], jf[jn, 3])
     Q[QJ] += sp[S_JACK_T]
