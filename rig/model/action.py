@@ -238,6 +238,12 @@ class ActionModel:
         if not self.output_rate > 0:
             raise ValueError(f"output_rate: expected a positive rate in Hz, got {output_rate}")
         self.atol = np.r_[np.full(k.NQ, num["atol_angle"]), np.full(k.NQ, num["atol_rate"])]
+        length = build.params.tree["hammer_shank_beam"]["length"]
+        for q, tol in ((k.QU1, num["atol_shank_axial"]),
+                       (k.QV1, num["atol_shank_tip"] / length**2),
+                       (k.QV2, num["atol_shank_tip"] / length**3)):
+            self.atol[q] = tol
+            self.atol[k.NQ + q] = tol * num["shank_rate_factor"]
         self.active = np.ones(k.NQ, dtype=bool)
         self.active[k.QYK] = build.flags["liftoff"]
         self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
