@@ -479,19 +479,16 @@ def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
     )
 
 
-@njit(cache=True)
-def accelerations(t, y, f_key, model, ws, full):
-    """Generalized accelerations for state y under key force f_key (N, downward)."""
+@njit(cache=True, inline="always")
+def _inertia(q, qd, g, model, ws):
+    """Kinematics, then M and Q with gravity and velocity-product terms (all bodies)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
     org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
-    q = y[:NQ]
-    qd = y[NQ : 2 * NQ]
     kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     for a in range(NQ):
         Q[a] = 0.0
         for b in range(NQ):
             M[a, b] = 0.0
-    g = sp[S_G]
     # rigid mass elements: frame, m, I, cx, cy
     for e in range(me.shape[0]):
         _mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
@@ -502,6 +499,17 @@ def accelerations(t, y, f_key, model, ws, full):
         for p in range(beam.shape[0]):
             _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
             _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, g, cs, w, JO, Jp, aO, al, M, Q)
+
+
+@njit(cache=True)
+def accelerations(t, y, f_key, model, ws, full):
+    """Generalized accelerations for state y under key force f_key (N, downward)."""
+    sp, sec_xi, cf, cl, jf, me, beam = model
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    q = y[:NQ]
+    qd = y[NQ : 2 * NQ]
+    _inertia(q, qd, sp[S_G], model, ws)
+    if sp[S_FLEX] > 0.5:
         ea = sp[S_EA]
         ej = sp[S_EJ]
         ln = sp[S_L]
@@ -594,32 +602,25 @@ def energy(y, model, ws):
     org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
     q = y[:NQ]
     qd = y[NQ : 2 * NQ]
-    kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
+    _inertia(q, qd, 0.0, model, ws)
+    kin = 0.0
     for a in range(NQ):
-        Q[a] = 0.0
         for b in range(NQ):
-            M[a, b] = 0.0
+            kin += 0.5 * qd[a] * M[a, b] * qd[b]
     g = sp[S_G]
     pot = 0.0
     for e in range(me.shape[0]):
         f = int(me[e, 0])
-        _mass_element(f, me[e, 1], me[e, 2], me[e, 3], me[e, 4], 0.0, cs, w, JO, Jp, aO, al, M, Q)
-        cy = org[f, 1] + cs[f, 1] * me[e, 3] + cs[f, 0] * me[e, 4]
-        pot += me[e, 1] * g * cy
+        pot += me[e, 1] * g * (org[f, 1] + cs[f, 1] * me[e, 3] + cs[f, 0] * me[e, 4])
     elastic = 0.0
     if sp[S_FLEX] > 0.5:
         k = org.shape[0] - 1
         for p in range(beam.shape[0]):
             _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
-            _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp, aO, al, M, Q)
             pot += beam[p, 1] * g * org[k, 1]
         ln = sp[S_L]
         v1 = q[QV1]
         v2 = q[QV2]
         elastic = 0.5 * sp[S_EA] * ln * q[QU1] * q[QU1] + 0.5 * sp[S_EJ] * (
             4.0 * ln * v1 * v1 + 12.0 * ln * ln * v1 * v2 + 12.0 * ln * ln * ln * v2 * v2)
-    kin = 0.0
-    for a in range(NQ):
-        for b in range(NQ):
-            kin += 0.5 * qd[a] * M[a, b] * qd[b]
     return kin, pot, elastic
