@@ -329,3 +329,44 @@ def test_kernel_edits_invalidate_dependent_caches(tmp_path):
     os.utime(fake, (old, old))
     rm._drop_stale_caches()
     assert not fake.exists()
+
+
+STATE_EFFECT = '''
+import numpy as np
+from rig.model.effects import Effect, EffectParameter, EffectState
+
+class HammerMaxwell(Effect):
+    """A spring from the hammer to a relaxing rest angle z (a Maxwell element)."""
+    name = "hammer_maxwell"
+    summary = "viscoelastic restraint of the hammer"
+    parameters = (EffectParameter("k", "N m/rad", 0.0, (0.0, 10.0), True, "stiffness"),
+                  EffectParameter("tau", "s", 0.01, (1e-4, 1.0), True, "relaxation time"))
+    states = (EffectState("rest_angle", "rad", 1e-10, 0.5),)
+
+    def generalized_force(self, t, q, qd, z):
+        f = np.zeros(9)
+        f[5] = -self.values["k"] * (q[5] - z[0])
+        return f
+
+    def state_derivative(self, t, q, qd, z):
+        return np.array([(q[5] - z[0]) / self.values["tau"]])
+'''
+
+
+def test_user_effect_adds_a_state_with_its_own_dynamics(tmp_path, forte, forte_rigid):
+    (tmp_path / "maxwell.py").write_text(textwrap.dedent(STATE_EFFECT))
+    ref = f"{tmp_path / 'maxwell.py'}:HammerMaxwell"
+    free = ActionModel(effects=[ref])
+    rest = free.rest_state()
+    assert rest.shape == (19,) and rest[18] == pytest.approx(rest[5], abs=1e-9)
+    y0 = rest.copy()
+    y0[18] = 0.5
+    step = free.stepper(y0)
+    step.advance(0.05, 0.0)
+    res = step.result()
+    z = res.channels["hammer_maxwell_rest_angle"]
+    exact = rest[5] + (0.5 - rest[5]) * np.exp(-res.time / 0.01)
+    np.testing.assert_allclose(z, exact, atol=1e-6)
+    assert res.units["hammer_maxwell_rest_angle"] == "rad"
+    held = ActionModel(effects=[{ref: {"k": 0.5, "tau": 0.1}}]).simulate(forte, duration=0.07)
+    assert held.success and held.strike_speed < 0.97 * forte_rigid.strike_speed

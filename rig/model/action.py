@@ -30,7 +30,7 @@ from rig import profiles as _profiles
 from rig.model import assembly
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
-from rig.model.integrators import Advance, DormandPrince, Integrator, by_name
+from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator, by_name
 from rig.params import Parameters, load_yaml_file
 
 COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2")
@@ -229,7 +229,15 @@ class ActionModel:
         for (cid, col), value in build.contact_overrides.items():
             self.packed.arrays[3][self.packed.contact_ids.index(cid), col] = value
         num = build.params.tree["numerics"]
-        self.python_forces = [e for e in self.effects if e.has_generalized_force()]
+        self.python_forces = [e for e in self.effects if e.runs_in_python()]
+        # states that effects add past the kernel's 18: (effect, slice of the state vector)
+        self.effect_states: list[tuple[Effect, slice]] = []
+        start = k.NY
+        for e in self.effects:
+            if e.states:
+                self.effect_states.append((e, slice(start, start + len(e.states))))
+                start += len(e.states)
+        self.n_state = start
         if integrator is None:
             integrator = by_name("scipy-LSODA" if self.python_forces else "rosenbrock",
                                  rtol=num["rtol"], max_step=num["max_step"])
@@ -244,6 +252,7 @@ class ActionModel:
                        (k.QV2, num["atol_shank_tip"] / length**3)):
             self.atol[q] = tol
             self.atol[k.NQ + q] = tol * num["shank_rate_factor"]
+        self.atol = np.r_[self.atol, [st.atol for e, _ in self.effect_states for st in e.states]]
         self.active = np.ones(k.NQ, dtype=bool)
         self.active[k.QYK] = build.flags["liftoff"]
         self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
@@ -330,10 +339,12 @@ class ActionModel:
 
     def _table_state(self) -> np.ndarray:
         st = self.build.params.tree["initial_state"]
-        y = np.zeros(k.NY)
+        y = np.zeros(self.n_state)
         for i, name in enumerate(COORDINATES):
             if self.active[i] and name != "y_k":
                 y[i] = st[name]
+        for e, sl in self.effect_states:
+            y[sl] = [s.initial for s in e.states]
         return y
 
     def accelerations(self, y: np.ndarray, force: float = 0.0) -> np.ndarray:
@@ -356,20 +367,25 @@ class ActionModel:
             y = self._table_state()
             ws = self._workspace()
             # settle dynamically (friction and damping remove the energy) ...
-            integ = DormandPrince(rtol=1e-6, max_step=1e-3)
+            extra = self.extra_force()
+            integ = self.integrator if extra is not None else DormandPrince(rtol=1e-6,
+                                                                             max_step=1e-3)
             adv = integ.advance(self.packed.arrays, ws, y, 0.0, 0.4, 1e-5, np.zeros(1),
-                                np.zeros(1), np.zeros(0), self.atol)
+                                np.zeros(1), np.zeros(0), self.atol, extra)
             y = adv.y.copy()
-            y[k.NQ :] = 0.0
-            idx = np.flatnonzero(self.active)
-            dy = np.zeros(k.NY)
+            y[k.NQ : k.NY] = 0.0
+            # ... then polish: accelerations (and effect states' rates) = 0 at zero velocity
+            idx = np.r_[np.flatnonzero(self.active), np.arange(k.NY, self.n_state)]
+            dy = np.zeros(self.n_state)
 
-            # ... then polish: generalized accelerations = 0 at zero velocity
             def residual(x: np.ndarray) -> np.ndarray:
                 yy = y.copy()
                 yy[idx] = x
+                if extra is not None:
+                    ws[-1][:], dy[k.NY :] = extra(0.0, yy)
                 k.rhs(0.0, yy, 0.0, self.packed.arrays, ws, dy)
-                return dy[k.NQ + idx]
+                ws[-1][:] = 0.0
+                return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
 
             sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
                                 x_scale=1e-3)
@@ -421,17 +437,27 @@ class ActionModel:
                 ff = np.asarray(e.transform_input(ft, ff), dtype=float)
         return ft, ff
 
-    def extra_force(self) -> Callable[[float, np.ndarray], np.ndarray] | None:
+    def extra_force(self) -> ExtraForce | None:
+        """Python-level effects' generalized forces and state rates, or None if none."""
         if not self.python_forces:
             return None
+        slices = {id(e): sl for e, sl in self.effect_states}
 
-        def total(t: float, y: np.ndarray) -> np.ndarray:
-            q = np.zeros(k.NQ)
+        def total(t: float, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            force = np.zeros(k.NQ)
+            dz = np.zeros(self.n_state - k.NY)
+            q, qd = y[: k.NQ], y[k.NQ : k.NY]
             for e in self.python_forces:
-                f = e.generalized_force(t, y[: k.NQ], y[k.NQ :])
+                sl = slices.get(id(e))
+                if sl is None:
+                    f = e.generalized_force(t, q, qd)
+                else:
+                    z = y[sl]
+                    f = e.generalized_force(t, q, qd, z)
+                    dz[sl.start - k.NY : sl.stop - k.NY] = e.state_derivative(t, q, qd, z)
                 if f is not None:
-                    q += np.asarray(f, dtype=float)
-            return q
+                    force += np.asarray(f, dtype=float)
+            return force, dz
 
         return total
 
@@ -464,6 +490,9 @@ class ActionModel:
             ch["shank_tip_deflection"] = xo[:, k.X_TIP_DEFL]
         if self.build.flags["liftoff"]:
             ch["key_lift"] = xo[:, k.X_KEY_LIFT]
+        for e, sl in self.effect_states:
+            for st, col in zip(e.states, range(sl.start, sl.stop), strict=True):
+                ch[f"{e.name}_{st.name}"] = states[:, col].copy()
         return ch
 
     def _keytop_rest(self) -> float:
@@ -477,7 +506,10 @@ class ActionModel:
     def result_from_samples(self, time: np.ndarray, states: np.ndarray, force: np.ndarray,
                             status: int = 0, message: str = "ok") -> SimResult:
         ch = self.channels(time, states, force)
-        res = SimResult(time=ch["time"], channels=ch, units=dict(CHANNEL_UNITS), events={},
+        units = dict(CHANNEL_UNITS)
+        units.update({f"{e.name}_{st.name}": st.units for e, _ in self.effect_states
+                      for st in e.states})
+        res = SimResult(time=ch["time"], channels=ch, units=units, events={},
                         status=status, message=message, contact_ids=self.packed.contact_ids)
         for e in self.effects:
             e.add_channels(res)
@@ -558,7 +590,8 @@ class Stepper:
     def result(self) -> SimResult:
         """Every sample produced so far, with channels and events."""
         time = np.concatenate(self._times) if self._times else np.zeros(0)
-        states = np.concatenate(self._states) if self._states else np.zeros((0, k.NY))
+        states = (np.concatenate(self._states) if self._states
+                  else np.zeros((0, self.model.n_state)))
         force = np.concatenate(self._forces) if self._forces else np.zeros(0)
         res = self.model.result_from_samples(time, states, force, self.status, self.message)
         res.stats.update(self.stats)

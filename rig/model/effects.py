@@ -12,6 +12,10 @@ changes the model through any of these hooks:
   (e.g. a drive's lag); runs on the profile before integration.
 - ``generalized_force(t, q, qdot)``: extra generalized forces on the 9
   coordinates (Python; the model then integrates through scipy, slower).
+- ``states`` with ``state_derivative(t, q, qdot, z)`` and
+  ``generalized_force(t, q, qdot, z)``: new state variables z (e.g. a new
+  coordinate and its rate) with their own dynamics, coupled to the mechanism
+  through generalized forces; each becomes an output channel ``<effect>_<state>``.
 - ``add_channels(result)`` / ``measure(result)``: new output channels, or
   what a sensor does to the channels (filters, misreadings).
 
@@ -52,6 +56,17 @@ class EffectParameter:
 
 
 @dataclass(frozen=True)
+class EffectState:
+    """A state variable an effect adds to the model (first order; a coordinate and its
+    rate are two states)."""
+
+    name: str
+    units: str
+    atol: float = 1e-8
+    initial: float = 0.0
+
+
+@dataclass(frozen=True)
 class Signature:
     """The residual an effect's absence leaves in measurements."""
 
@@ -79,6 +94,7 @@ class Effect:
     summary: ClassVar[str] = ""
     parameters: ClassVar[tuple[EffectParameter, ...]] = ()
     signature: ClassVar[Signature] = Signature((), (), "shape")
+    states: ClassVar[tuple[EffectState, ...]] = ()
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.parameters}
@@ -124,11 +140,20 @@ class Effect:
     def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
         return force
 
-    def generalized_force(self, t: float, q: np.ndarray, qd: np.ndarray) -> np.ndarray | None:
+    def generalized_force(self, t: float, q: np.ndarray, qd: np.ndarray,
+                          *z: np.ndarray) -> np.ndarray | None:
+        """Extra generalized forces (9); effects with ``states`` also receive their z."""
         return None
 
-    def has_generalized_force(self) -> bool:
-        return type(self).generalized_force is not Effect.generalized_force
+    def state_derivative(self, t: float, q: np.ndarray, qd: np.ndarray,
+                         z: np.ndarray) -> np.ndarray:
+        """dz/dt of the effect's own states."""
+        return np.zeros(len(self.states))
+
+    def runs_in_python(self) -> bool:
+        """True if the effect adds forces or states evaluated in Python at each step."""
+        return bool(self.states) or (
+            type(self).generalized_force is not Effect.generalized_force)
 
     def add_channels(self, result: SimResult) -> None:
         return None

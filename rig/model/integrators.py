@@ -270,7 +270,8 @@ def rk4_run(model, ws, y0, t0, t1, h, force_t, force_f, out_t, out_y):
     return y, t, steps, status, j
 
 
-ExtraForce = Callable[[float, np.ndarray], np.ndarray]
+# (t, y) -> (extra generalized forces (9), derivative of the states past the kernel's 18)
+ExtraForce = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def _compiled_only(name: str, extra_force: ExtraForce | None) -> None:
@@ -357,7 +358,8 @@ class ScipyIntegrator:
         def fun(t: float, y: np.ndarray) -> np.ndarray:
             counter[0] += 1
             if extra_force is not None:
-                qx[:] = extra_force(t, y)
+                qx[:], dz = extra_force(t, y)
+                dy[k.NY :] = dz
             k.rhs(t, y, force_at(t, force_t, force_f, hint), model, ws, dy)
             return dy.copy()
 
