@@ -51,8 +51,8 @@ def measure(effects: list[str], repeats: int, integrator: str | None) -> dict[st
 def reference(effects: list[str]) -> dict[str, float]:
     """The same blow with scipy BDF on the uncompiled right-hand side, in a subprocess."""
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    code = ("import json, sys; sys.path.insert(0, %r); import simulate as b; "
-            "print(json.dumps(b.measure(%r, 1, 'scipy-BDF')))" % (str(ROOT / "benchmarks"),
+    code = ("import json, sys; sys.path.insert(0, {!r}); import simulate as b; "
+            "print(json.dumps(b.measure({!r}, 1, 'scipy-BDF')))".format(str(ROOT / "benchmarks"),
                                                                    effects))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True, cwd=ROOT)

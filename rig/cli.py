@@ -80,6 +80,40 @@ def simulate(
         raise typer.Exit(code=1)
 
 
+@app.command()
+def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
+    """Summarize a run file: status, provenance, trials, channels, events."""
+    from rig import runfile
+
+    try:
+        r = runfile.read(run)
+    except ValueError as exc:
+        raise _fail(exc) from None
+    a = r.attrs
+    console.print(f"{run}: {r.kind} run, status {r.status}", markup=False, highlight=False,
+                  soft_wrap=True)
+    console.print(f"created {a.get('created')} on {a.get('host')} by rig "
+                  f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})",
+                  markup=False, highlight=False, soft_wrap=True)
+    model = r.metadata.get("model")
+    if isinstance(model, dict):
+        names = [e.get("name") for e in model.get("effects", [])]
+        console.print(f"model effects: {', '.join(names) or 'none'}", markup=False,
+                      soft_wrap=True)
+    for i, tr in enumerate(r.trials):
+        n = tr.time.size if "time" in tr.channels else 0
+        span = f"{tr.time[-1] - tr.time[0]:.3f} s" if n > 1 else "-"
+        console.print(f"trial {i}: {n} samples over {span}, status {tr.attrs.get('status')}",
+                      markup=False, highlight=False, soft_wrap=True)
+        for name, data in tr.channels.items():
+            console.print(f"  {name:<28} {tr.units.get(name, ''):<6} {data.shape}",
+                          markup=False, highlight=False, soft_wrap=True)
+        for name, t in tr.events.items():
+            shown = f"{t * 1e3:.2f} ms" if math.isfinite(t) else "--"
+            console.print(f"  event {name:<22} {shown}", markup=False, highlight=False,
+                          soft_wrap=True)
+
+
 @app.command("effects")
 def list_effects() -> None:
     """List the effect library: parameters and the residual each effect explains."""
@@ -326,6 +360,164 @@ def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
     if not result.passed:
         raise typer.Exit(code=1)
 # ---- end of rig calibrate / rig check ----
+
+
+# ---- rig compare / diagnose / fit / synth (issue 6): the work is in rig.analysis ----
+from collections.abc import Callable  # noqa: E402
+
+
+def _analysis_progress(bar: Progress, task: object) -> Callable[[float, float, str], None]:
+    def update(done: float, total: float, text: str = "") -> None:
+        bar.update(task, total=total, completed=done, sim=text)  # type: ignore[arg-type]
+
+    return update
+
+
+def _bar() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
+                    TimeElapsedColumn(), console=err, transient=True)
+
+
+@app.command("compare")
+def compare_cmd(
+    run: Annotated[Path, typer.Argument(help="run file (.h5): measured, synthetic or simulated")],
+    model: Annotated[list[Path] | None, typer.Option(
+        "--model", "-m", help="model YAML; repeat to compare models side by side")] = None,
+    input: Annotated[str, typer.Option(
+        help="what drives the models: force (measured), command (demand) or motion (key dip)")
+    ] = "force",
+    duration: Annotated[float | None, typer.Option(help="compare the first S seconds")] = None,
+    trial: Annotated[list[int] | None, typer.Option(help="trial index (default 0); repeat")
+                     ] = None,
+    channel: Annotated[list[str] | None, typer.Option(help="compare only these channels")
+                       ] = None,
+    report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
+) -> None:
+    """Drive each model with the run's measured input and tabulate its errors."""
+    from rig.analysis import compare as cp
+    from rig.services import compare as svc
+
+    try:
+        with _bar() as bar:
+            bar.add_task("simulating the models against the run", total=None, sim="")
+            comps = svc.compare(run, model or [], input=input, duration=duration, trials=trial,
+                                channels=channel, report_path=report)
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    for comp in comps:
+        console.print(cp.table(comp), markup=False, highlight=False, soft_wrap=True)
+    if report is not None:
+        console.print(f"wrote {report}", markup=False, highlight=False)
+    if any(not m.ok for c in comps for m in c.models):
+        raise typer.Exit(code=1)
+
+
+@app.command("diagnose")
+def diagnose_cmd(
+    run: Annotated[Path, typer.Argument(help="run file (.h5)")],
+    model: Annotated[Path | None, typer.Option("--model", "-m", help="model YAML (default: "
+                                               "the rigid base model)")] = None,
+    input: Annotated[str, typer.Option(help="force, command or motion")] = "force",
+    duration: Annotated[float | None, typer.Option(help="use the first S seconds")] = None,
+    trial: Annotated[list[int] | None, typer.Option(help="trial index; repeat (default all)")
+                     ] = None,
+    channel: Annotated[list[str] | None, typer.Option(help="use only these channels")] = None,
+    candidate: Annotated[list[str] | None, typer.Option(
+        help="try only these library effects (default: all not in the model)")] = None,
+    extra: Annotated[list[str] | None, typer.Option(
+        help="also try a user effect (module:Class or file.py:Class)")] = None,
+    jobs: Annotated[int | None, typer.Option(help="processes (default: one per core)")] = None,
+    write: Annotated[Path | None, typer.Option(
+        help="save the model with the winning effect and its fitted values here")] = None,
+    report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
+) -> None:
+    """Where the model fails, and which library effect removes the residual."""
+    from rig.services import diagnose as svc
+
+    try:
+        with _bar() as bar:
+            task = bar.add_task("fitting candidate effects", total=None, sim="")
+            diag = svc.diagnose(run, model, input=input, duration=duration, trials=trial,
+                                channels=channel, candidates=candidate, extra=extra or (),
+                                jobs=jobs, write=write, report_path=report,
+                                progress=_analysis_progress(bar, task))
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    for line in diag.report_lines():
+        console.print(line, markup=False, highlight=False, soft_wrap=True)
+    console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)
+    if write is not None:
+        console.print(f"wrote {write}", markup=False, highlight=False)
+    if report is not None:
+        console.print(f"wrote {report}", markup=False, highlight=False)
+
+
+@app.command("fit")
+def fit_cmd(
+    runs: Annotated[list[Path], typer.Argument(help="run files (.h5); every trial is used")],
+    param: Annotated[list[str], typer.Option(
+        help="parameter to fit: a path (contacts.4.D) or effect.param, optionally =LO:HI")],
+    model: Annotated[Path | None, typer.Option("--model", "-m", help="model YAML")] = None,
+    input: Annotated[str, typer.Option(help="force, command or motion")] = "force",
+    duration: Annotated[float | None, typer.Option(help="use the first S seconds")] = None,
+    channel: Annotated[list[str] | None, typer.Option(help="use only these channels")] = None,
+    jobs: Annotated[int | None, typer.Option(help="processes (default: one per core)")] = None,
+    max_nfev: Annotated[int, typer.Option(help="least-squares iterations at most")] = 40,
+    write: Annotated[Path | None, typer.Option(help="save the fitted model YAML here")] = None,
+) -> None:
+    """Fit model or effect parameters to one or many runs (scipy least squares)."""
+    from rig.services import fit as svc
+
+    try:
+        with _bar() as bar:
+            task = bar.add_task("fitting", total=None, sim="")
+            res = svc.fit(runs, model, param, input=input, duration=duration, channels=channel,
+                          jobs=jobs, max_nfev=max_nfev, write=write,
+                          progress=_analysis_progress(bar, task))
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    for t in res.targets:
+        console.print(f"{t.label} = {res.values[t.label]:.6g} +- {res.sigma[t.label]:.2g} "
+                      f"{t.units} (start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
+                      markup=False, highlight=False)
+    console.print(f"normalized mean square residual {res.cost_start:.4g} -> {res.cost:.4g} "
+                  f"({res.nfev} evaluations; {res.message})", markup=False, highlight=False)
+    if write is not None:
+        console.print(f"wrote {write}", markup=False, highlight=False)
+
+
+@app.command("synth")
+def synth_cmd(
+    model: Annotated[Path, typer.Option("--model", "-m", help="the truth model YAML")],
+    profile: Annotated[list[Path], typer.Option(help="force profile; repeat for more trials")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="run file to write (.h5)")],
+    seed: Annotated[int, typer.Option(help="seed of the sensors' truth and noise")] = 0,
+    trials: Annotated[int, typer.Option(help="trials per profile (fresh noise each)")] = 1,
+    duration: Annotated[float | None, typer.Option(help="simulated time per trial, s")] = None,
+    rig: Annotated[Path | None, typer.Option("--rig", help="rig config YAML (default: the "
+                                             "built-in simulated rig with a key rotary encoder)")
+                   ] = None,
+    load_cell_filter: Annotated[bool, typer.Option(
+        help="pass the force through the load cell's 4-pole filter")] = True,
+    noise_scale: Annotated[float, typer.Option(help="scale on the sensors' noise")] = 1.0,
+    record_truth: Annotated[bool, typer.Option(
+        help="store the truth model in the file's metadata (off: the analysis cannot peek)")
+    ] = False,
+) -> None:
+    """Make a measurement-like run from a truth model through the drive and sensor models."""
+    from rig.services import synth as svc
+
+    try:
+        made = svc.synth(model, profile, out, seed=seed, trials=trials, duration=duration,
+                         rig=rig, load_cell_filter=load_cell_filter, noise_scale=noise_scale,
+                         record_truth=record_truth)
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    chans = [c for c in made[0].channels if c != "time"]
+    console.print(f"{len(made)} trial(s), channels {', '.join(chans)}", markup=False,
+                  highlight=False, soft_wrap=True)
+    console.print(f"wrote {out}", markup=False, highlight=False)
+# ---- end of rig compare / diagnose / fit / synth ----
 
 
 if __name__ == "__main__":  # pragma: no cover

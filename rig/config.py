@@ -262,6 +262,9 @@ def _one_line(source: str, exc: ValidationError) -> ValueError:
     msg = err["msg"].removeprefix("Value error, ")
     if err["type"] == "extra_forbidden":
         msg = "unknown field"
+    head, sep, rest = msg.partition(": ")
+    if sep and head.isidentifier():  # a model validator naming its field
+        where, msg = f"{where}.{head}" if err["loc"] else head, rest
     extra = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
     return ValueError(f"{source}: {where}: {msg}{extra}")
 

@@ -119,12 +119,16 @@ class RunWriter:
     """Create a run file and fill it; always close it (it is a context manager)."""
 
     def __init__(self, path: str | Path, kind: str, metadata: Mapping[str, Any] | None = None,
-                 ) -> None:
+                 *, crash_safe: bool = False) -> None:
+        """``crash_safe`` writes the HDF5 1.8 file format, which stays readable (up to the
+        last flush) when the writing process is killed; the newer format's consistency
+        flags would make it unopenable without h5clear. Measured runs use it."""
         if kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.file = h5py.File(self.path, "w", libver="latest")
+        self.file = h5py.File(self.path, "w",
+                              libver=("earliest", "v108") if crash_safe else "latest")
         a = self.file.attrs
         a["format"] = FORMAT
         a["format_version"] = FORMAT_VERSION
@@ -139,6 +143,17 @@ class RunWriter:
         for name, value in (metadata or {}).items():
             self.add_metadata(name, value)
         self.file.flush()
+
+    @classmethod
+    def reopen(cls, path: str | Path) -> RunWriter:
+        """Open an existing run file to finish it (e.g. after its writer process died)."""
+        self = cls.__new__(cls)
+        self.path = Path(path)
+        self.file = h5py.File(self.path, "a")
+        if self.file.attrs.get("format") != FORMAT:
+            self.file.close()
+            raise ValueError(f"{path}: not a rig run file")
+        return self
 
     def add_metadata(self, name: str, value: Any, fmt: str | None = None) -> None:
         text, kind = _text(value)

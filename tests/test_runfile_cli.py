@@ -76,3 +76,13 @@ def test_cli_refuses_a_bad_profile_in_one_line(tmp_path):
     assert lines == [f"error: {bad}: points[1] force: 300.0 N is above the force limit of "
                      f"120.0 N"]
     assert not (tmp_path / "o.h5").exists()
+
+
+def test_cli_info_summarizes_a_run(tmp_path, forte_rigid):
+    path = runfile.write_result(tmp_path / "r.h5", forte_rigid)
+    result = CliRunner().invoke(app, ["info", str(path)])
+    assert result.exit_code == 0, result.output
+    assert "simulated run, status complete" in result.output
+    assert "hammer_angle" in result.output and "event strike" in result.output
+    bad = CliRunner().invoke(app, ["info", str(tmp_path / "none.h5")])
+    assert bad.exit_code == 2 and "not found" in bad.output

@@ -1,0 +1,233 @@
+"""The acquisition process: 2 kHz samples from the cards into the run file.
+
+A separate OS process (multiprocessing, spawn) that owns the run file. It
+reads the load cell, the strain bridge and the encoders on one sample clock
+in blocks (``acquisition.read_period_s``), checks the sample counter for
+continuity, converts raw values to SI with the calibrations in use, and
+appends raw and calibrated channels to the current trial, flushing at least
+every ``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
+arrive over a queue and go to ``commands/``. A card overflow or a gap stops
+acquisition with a clear message: the file is closed ``aborted: ...`` and the
+process exits with code 1. SIGINT is ignored here: the run's process decides.
+
+Messages from the run (queue ``ctrl``):
+    ("go",)                                      start the sample clock
+    ("trial", k, record_start_sample, profile_start_sample)
+    ("commands", k, {name: array})
+    ("stop", end_sample, status, metadata, {k: trial attrs})
+Messages to the run (queue ``status``): ("ready",), ("started",),
+("done", n_samples), ("error", message).
+"""
+
+from __future__ import annotations
+
+import queue
+import signal
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig import calrecords, runfile
+from rig.calrecords import CalRecord
+from rig.config import RigConfig, from_mapping
+from rig.daq import DaqFault, open_reader
+
+COMMAND_UNITS = {
+    "time": "s", "tick": "1", "target": "N", "feedforward": "N", "demand": "N", "volts": "V",
+    "limited": "1", "measured_force": "N", "lateness": "s", "missed": "1",
+}
+COMMAND_DOCS = {
+    "time": "trial time of the loop tick (0 = profile start)",
+    "tick": "index of the 500 Hz tick on the rig's clock",
+    "target": "profile force at this time",
+    "feedforward": "profile force advance_s ahead (open-loop lag compensation)",
+    "demand": "force demanded after the controller and the limits",
+    "volts": "analog output to the drive",
+    "limited": "1 where a force or rate limit changed the demand",
+    "measured_force": "latest load-cell force the controller saw",
+    "lateness": "time from the tick to the loop's wake-up",
+    "missed": "ticks missed before this one (the output was held)",
+}
+CHANNEL_DOCS = {
+    "time": "trial time (0 = profile start), sample / rate",
+    "sample": "sample counter since the acquisition started (proves no gap)",
+    "load_cell_ratio": "load-cell bridge output, raw",
+    "strain_ratio": "strain-gauge quarter bridge output, raw",
+    "force": "force on the key top from the load cell (calibration in metadata)",
+    "shank_strain": "hammer-shank strain at the gauge, + = tension",
+}
+
+
+@dataclass
+class _Trial:
+    index: int
+    record_start: int
+    profile_start: int
+    rows: list[np.ndarray] = field(default_factory=list)
+    commands: list[dict[str, np.ndarray]] = field(default_factory=list)
+    writer: runfile.TrialWriter | None = None
+
+
+class Acquisition:
+    """The acquisition loop (runs inside the acquisition process; testable in-process)."""
+
+    def __init__(self, cfg: RigConfig, cals: dict[str, CalRecord], writer: runfile.RunWriter,
+                 ctrl: Any, status: Any) -> None:
+        self.cfg, self.cals, self.writer = cfg, cals, writer
+        self.ctrl, self.status = ctrl, status
+        self.trials: list[_Trial] = []
+        self.next_sample = 0
+        self.units = calrecords.channel_units(cfg)
+        self.docs = dict(CHANNEL_DOCS)
+        for n, enc in cfg.channels.encoders.items():
+            self.docs[f"{n}_counts"] = f"{n} encoder counts (x4), on the {enc.body}"
+            self.docs[enc.channel_name] = f"{enc.body} from the {n} encoder"
+        self.stop: tuple[Any, ...] | None = None
+
+    # -- messages --------------------------------------------------------------------
+    def _handle(self, msg: tuple[Any, ...]) -> None:
+        kind = msg[0]
+        if kind == "trial":
+            _, k, rec, prof = msg
+            self.trials.append(_Trial(int(k), int(rec), int(prof)))
+        elif kind == "commands":
+            _, k, data = msg
+            self._trial(int(k)).commands.append(data)
+        elif kind == "stop":
+            self.stop = msg
+        else:
+            raise ValueError(f"message: unknown kind {kind!r}")
+
+    def _trial(self, k: int) -> _Trial:
+        for tr in self.trials:
+            if tr.index == k:
+                return tr
+        raise RuntimeError(f"commands for trial {k} before the trial was announced")
+
+    def poll(self) -> None:
+        while True:
+            try:
+                msg = self.ctrl.get_nowait()
+            except queue.Empty:
+                return
+            self._handle(msg)
+
+    # -- samples -----------------------------------------------------------------------
+    def take(self, rows: np.ndarray) -> None:
+        """Check counter continuity and file rows under their trials."""
+        if rows.shape[0] == 0:
+            return
+        counter = rows[:, 0]
+        if counter[0] != self.next_sample or np.any(np.diff(counter) != 1):
+            bad = self.next_sample if counter[0] != self.next_sample else int(
+                counter[np.flatnonzero(np.diff(counter) != 1)[0]]) + 1
+            raise DaqFault(f"gap in the sample counter at sample {bad}")
+        self.next_sample = int(counter[-1]) + 1
+        if not self.trials:
+            raise DaqFault("samples arrived before the first trial was announced")
+        starts = [t.record_start for t in self.trials]
+        which = np.searchsorted(starts, counter, side="right") - 1
+        for i in np.unique(which):
+            if i < 0:
+                raise DaqFault(f"sample {int(counter[0])} precedes the first trial")
+            self.trials[int(i)].rows.append(rows[which == i])
+
+    def write_pending(self) -> None:
+        for tr in self.trials:
+            if tr.writer is None and (tr.rows or tr.commands):
+                tr.writer = self.writer.trial(tr.index)
+                tr.writer.set_attrs(t0=tr.profile_start / self.cfg.rates.acquisition_hz,
+                                    record_start_sample=tr.record_start,
+                                    profile_start_sample=tr.profile_start)
+            if tr.rows:
+                block = np.vstack(tr.rows)
+                tr.rows.clear()
+                data = calrecords.convert(block, self.cfg, self.cals, tr.profile_start)
+                assert tr.writer is not None
+                tr.writer.append("channels", data, self.units, self.docs)
+            for cmd in tr.commands:
+                assert tr.writer is not None
+                tr.writer.append("commands", cmd, COMMAND_UNITS, COMMAND_DOCS)
+            tr.commands.clear()
+        self.writer.flush()
+
+    def finish(self, status: str, metadata: dict[str, Any], trial_attrs: dict[int, Any]) -> None:
+        self.write_pending()
+        for name, value in metadata.items():
+            self.writer.add_metadata(name, value)
+        for k, attrs in trial_attrs.items():
+            self.writer.trial(int(k)).set_attrs(**attrs)
+        self.writer.close(status)
+
+
+def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any],
+                    path: str, metadata: dict[str, Any], ctrl: Any, status: Any) -> None:
+    """Entry point of the acquisition process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    cfg = from_mapping(cfg_data)
+    records = {k: CalRecord(**v) for k, v in cals.items()}
+    writer = runfile.RunWriter(Path(path), "measured", metadata, crash_safe=True)
+    acq = Acquisition(cfg, records, writer, ctrl, status)
+    code = 0
+    reader = None
+    try:
+        reader = open_reader(spec)
+        status.put(("ready",))
+        while True:
+            msg = ctrl.get(timeout=cfg.acquisition.start_timeout_s)
+            if msg[0] == "go":
+                break
+            acq._handle(msg)
+        reader.start()
+        status.put(("started",))
+        period = cfg.acquisition.read_period_s
+        last_flush = time.monotonic()
+        drain_until = None
+        while True:
+            acq.poll()
+            rows = reader.read(period)
+            acq.take(rows)
+            if rows.shape[0]:
+                reader.publish_feedback(int(rows[-1, 0]), float(rows[-1, 1]))
+            now = time.monotonic()
+            if now - last_flush >= cfg.acquisition.flush_period_s:
+                acq.write_pending()
+                last_flush = now
+            if acq.stop is not None:
+                end_sample = int(acq.stop[1])
+                drain_until = drain_until or now + 5.0
+                if acq.next_sample >= end_sample or now > drain_until:
+                    break
+        assert acq.stop is not None
+        _, _, final_status, meta, tattrs = acq.stop
+        if acq.next_sample < int(acq.stop[1]):
+            final_status = (f"aborted: acquisition got {acq.next_sample} of {acq.stop[1]} "
+                            f"samples" if final_status == "complete" else final_status)
+        acq.finish(final_status, meta, tattrs)
+        status.put(("done", acq.next_sample))
+    except DaqFault as exc:
+        code = 1
+        _abort(acq, writer, f"aborted: {exc}")
+        status.put(("error", str(exc)))
+    except Exception as exc:  # report anything else as the reason, then exit non-zero
+        code = 1
+        msg = f"acquisition failed: {type(exc).__name__}: {exc}"
+        _abort(acq, writer, f"aborted: {msg}")
+        status.put(("error", msg + "\n" + traceback.format_exc(limit=3)))
+    finally:
+        if reader is not None:
+            reader.close()
+    if code:
+        raise SystemExit(code)
+
+
+def _abort(acq: Acquisition, writer: runfile.RunWriter, status: str) -> None:
+    try:
+        acq.poll()
+        acq.write_pending()
+    finally:
+        writer.close(status)

@@ -1,0 +1,220 @@
+"""Calibration records: one JSON file per calibration, content-hashed, newest valid wins.
+
+A record holds: sensor, identifier (serial or physical channel), created (UTC),
+operator, the rig it was made on (backend, name, simulated seed), software
+version and git commit, the raw points, the fit (``sensitivity`` and
+``offset`` in the calrecords conventions, units stated), the uncertainty
+budget (k = 2), the checks, and ``content_hash`` = sha256 of the canonical
+JSON of everything else. A file whose hash does not match, or that was made
+on another backend (or another simulated seed), is not valid and is skipped.
+
+    path = write(folder, build("load_cell", cfg, identifier, operator, ...))
+    rec, path = newest_valid(folder, "load_cell", cfg)
+    cals = records_for_run(cfg)        # what calrecords.lookup returns
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+from rig import __version__
+from rig.calibration.settings import records_folder, settings_for
+from rig.calrecords import CalRecord, nominal
+from rig.config import RigConfig
+
+FORMAT = "rig-calibration"
+FORMAT_VERSION = 1
+SENSORS = ("load_cell", "strain_gauge", "motor", "encoders")
+
+
+class MissingCalibration(RuntimeError):
+    """A real-hardware run needs a calibration record that does not exist."""
+
+
+class CalibrationAgeWarning(UserWarning):
+    """A record in use is older than calibration.max_age_days."""
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if hasattr(obj, "tolist"):
+        return _clean(obj.tolist())
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def content_hash(record: dict[str, Any]) -> str:
+    """sha256 of the canonical JSON of the record without its hash."""
+    body = {k: v for k, v in record.items() if k != "content_hash"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+def rig_identity(cfg: RigConfig) -> dict[str, Any]:
+    ident: dict[str, Any] = {"name": cfg.name, "backend": cfg.backend}
+    if cfg.backend == "sim":
+        ident["sim_seed"] = cfg.sim.seed
+    return ident
+
+
+def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: str,
+          units: dict[str, str], raw_points: Any, fit: dict[str, Any],
+          uncertainty: dict[str, Any], checks: dict[str, Any] | None = None,
+          extra: dict[str, Any] | None = None,
+          created: _dt.datetime | None = None) -> dict[str, Any]:
+    """A complete record (with its content hash) ready to ``write``."""
+    from rig.runfile import git_commit
+
+    if sensor not in SENSORS:
+        raise ValueError(f"sensor: expected one of {SENSORS}, got {sensor!r}")
+    when = created or _dt.datetime.now(_dt.UTC)
+    rec: dict[str, Any] = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "sensor": sensor, "kind": kind,
+        "identifier": identifier, "created": when.isoformat(timespec="microseconds"),
+        "operator": operator, "rig": rig_identity(cfg), "software_version": __version__,
+        "git_commit": git_commit(), "units": units, "raw_points": raw_points, "fit": fit,
+        "uncertainty": uncertainty, "checks": checks or {}, **(extra or {})}
+    rec = _clean(rec)
+    rec["content_hash"] = content_hash(rec)
+    return rec
+
+
+def write(folder: Path, record: dict[str, Any]) -> Path:
+    """Write a new record file (never overwrites); returns its path."""
+    if record.get("content_hash") != content_hash(record):
+        raise ValueError("record: content_hash does not match its content (build() it)")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp = _dt.datetime.fromisoformat(record["created"]).strftime("%Y%m%dT%H%M%S%fZ")
+    path = folder / f"{record['sensor']}-{stamp}-{record['content_hash'][7:15]}.json"
+    if path.exists():
+        raise RuntimeError(f"{path}: a calibration record with this name already exists")
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def read(path: Path) -> dict[str, Any]:
+    """Read and verify one record (ValueError with the reason if it is not valid)."""
+    try:
+        rec = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable calibration record ({exc})") from None
+    if not isinstance(rec, dict) or rec.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a calibration record (format is not {FORMAT!r})")
+    if rec.get("content_hash") != content_hash(rec):
+        raise ValueError(f"{path}: content_hash does not match: the file was altered")
+    for key in ("sensor", "created", "fit", "uncertainty", "rig"):
+        if key not in rec:
+            raise ValueError(f"{path}: {key}: missing")
+    return rec
+
+
+def newest_valid(folder: Path, sensor: str, cfg: RigConfig) -> tuple[dict[str, Any], Path] | None:
+    """The newest valid record for ``sensor`` made on this rig's backend (and sim seed)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return None
+    best: tuple[str, dict[str, Any], Path] | None = None
+    want = rig_identity(cfg)
+    for path in sorted(folder.glob(f"{sensor}-*.json")):
+        try:
+            rec = read(path)
+        except ValueError as exc:
+            warnings.warn(f"skipping {exc}", CalibrationAgeWarning, stacklevel=2)
+            continue
+        if rec["sensor"] != sensor or rec["rig"].get("backend") != want["backend"]:
+            continue
+        if want["backend"] == "sim" and rec["rig"].get("sim_seed") != want.get("sim_seed"):
+            continue
+        if best is None or rec["created"] > best[0]:
+            best = (rec["created"], rec, path)
+    return None if best is None else (best[1], best[2])
+
+
+def age_days(rec: dict[str, Any], now: _dt.datetime | None = None) -> float:
+    created = _dt.datetime.fromisoformat(rec["created"])
+    return ((now or _dt.datetime.now(_dt.UTC)) - created).total_seconds() / 86400.0
+
+
+def _source(rec: dict[str, Any], path: Path) -> str:
+    return (f"calibration {path.name} ({rec['kind']}, {rec['created']}, operator "
+            f"{rec['operator']}, {rec['content_hash']})")
+
+
+def to_calrecord(rec: dict[str, Any], path: Path) -> CalRecord:
+    """The run-time view of a stored record (sensitivity/offset in calrecords conventions)."""
+    fit = rec["fit"]
+    units = rec["units"]
+    return CalRecord(rec["sensor"], False, float(fit["sensitivity"]), float(fit["offset"]),
+                     units["raw"], units["calibrated"], _source(rec, path))
+
+
+def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str, CalRecord]:
+    """Calibration records a run uses (the body of ``calrecords.lookup``).
+
+    Newest valid record per sensor; a record older than ``max_age_days`` is
+    used with a ``CalibrationAgeWarning``. On real hardware a sensor listed in
+    ``calibration.required`` without a record refuses the run
+    (``MissingCalibration``) unless ``calibration.use_raw_units``; the
+    simulated rig falls back to the nominal (data-sheet) records, marked nominal.
+    """
+    settings = settings_for(cfg)
+    folder = records_folder(cfg)
+    cals = nominal(cfg)
+    missing = []
+    for sensor in ("load_cell", "strain_gauge", "motor"):
+        if sensor == "strain_gauge" and not cfg.channels.strain_gauge.enabled:
+            continue
+        found = newest_valid(folder, sensor, cfg)
+        if found is None:
+            if sensor in settings.required:
+                missing.append(sensor)
+            continue
+        rec, path = found
+        age = age_days(rec, now)
+        if age > settings.max_age_days:
+            warnings.warn(f"calibration record {path.name} ({sensor}) is {age:.1f} days old "
+                          f"(calibration.max_age_days is {settings.max_age_days:g}): "
+                          f"recalibrate soon", CalibrationAgeWarning, stacklevel=2)
+        cals[sensor] = to_calrecord(rec, path)
+    if missing and cfg.backend != "sim" and not settings.use_raw_units:
+        cmds = ", ".join(f"`rig calibrate {'loadcell' if s == 'load_cell' else 'strain'}`"
+                         if s in ("load_cell", "strain_gauge") else f"`rig calibrate {s}`"
+                         for s in missing)
+        raise MissingCalibration(
+            f"calibration: no valid record for {', '.join(missing)} in {folder}: run {cmds} "
+            f"first, or set calibration.use_raw_units: true to run with data-sheet values")
+    if missing and cfg.backend != "sim":
+        for s in missing:
+            old = cals[s]
+            cals[s] = CalRecord(old.sensor, True, old.sensitivity, old.offset, old.raw_units,
+                                old.units, "data sheet (calibration.use_raw_units: no record)")
+    return cals
+
+
+def embedded(cals: dict[str, CalRecord], cfg: RigConfig) -> list[dict[str, Any]]:
+    """Full stored records behind ``cals`` (for a run file's metadata), by content hash."""
+    out = []
+    folder = records_folder(cfg)
+    for rec in cals.values():
+        if rec.nominal or not rec.source.startswith("calibration "):
+            continue
+        name = rec.source.split(" ", 2)[1]
+        out.append(read(folder / name))
+    return out

@@ -1,0 +1,107 @@
+"""Calibration records in use, and raw -> SI conversion of acquired blocks.
+
+``lookup`` is the one place a run asks which calibration applies to each
+sensor. Until calibration (issue 5) stores measured records, it returns the
+nominal ones from the data sheets, marked ``nominal: true``. Conventions:
+
+    load_cell      sensitivity (V/V)/N,      offset V/V     force = (r - offset) / sensitivity
+    strain_gauge   sensitivity = gage factor, offset V/V    NI quarter-bridge-I formula
+    <encoder>      sensitivity rad|m per count (signed), offset rad|m at count 0
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from rig import encoders, loadcell, strain
+from rig.config import RigConfig
+
+
+@dataclass(frozen=True)
+class CalRecord:
+    """One sensor's calibration as used for a run."""
+
+    sensor: str
+    nominal: bool
+    sensitivity: float
+    offset: float
+    raw_units: str
+    units: str
+    source: str = "data sheet"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def nominal(cfg: RigConfig) -> dict[str, CalRecord]:
+    """Data-sheet calibrations of every sensor of the rig."""
+    ch = cfg.channels
+    recs = {"load_cell": CalRecord("load_cell", True, loadcell.nominal_sensitivity(ch.load_cell),
+                                   0.0, "V/V", "N")}
+    if ch.strain_gauge.enabled:
+        recs["strain_gauge"] = CalRecord("strain_gauge", True, ch.strain_gauge.gage_factor, 0.0,
+                                         "V/V", "m/m")
+    for name, enc in ch.encoders.items():
+        recs[name] = CalRecord(name, True, enc.sign * enc.si_per_count, enc.initial_value,
+                               "counts", enc.units)
+    return recs
+
+
+def lookup(cfg: RigConfig) -> dict[str, CalRecord]:
+    """The calibration record in use for each sensor (issue 5 plugs measured records in here)."""
+    # newest valid record per sensor, age warning, refusal on NI without a required one
+    # (unless calibration.use_raw_units), nominal on the simulated rig: see
+    # rig.calibration.records.records_for_run
+    from rig.calibration.records import records_for_run
+
+    return records_for_run(cfg)
+
+
+RAW_UNITS = {"sample": "1", "load_cell_ratio": "V/V", "strain_ratio": "V/V"}
+
+
+def raw_names(cfg: RigConfig) -> list[str]:
+    """Raw channel names in the order of a block's columns."""
+    names = ["sample", "load_cell_ratio"]
+    if cfg.channels.strain_gauge.enabled:
+        names.append("strain_ratio")
+    names += [f"{n}_counts" for n in cfg.channels.encoders]
+    return names
+
+
+def channel_units(cfg: RigConfig) -> dict[str, str]:
+    """Units of every channel a measured run stores (raw and calibrated)."""
+    u = {"time": "s", **RAW_UNITS, "force": "N"}
+    if cfg.channels.strain_gauge.enabled:
+        u["shank_strain"] = "m/m"
+    for n, enc in cfg.channels.encoders.items():
+        u[f"{n}_counts"] = "counts"
+        u[enc.channel_name] = enc.units
+    return {k: v for k, v in u.items() if k != "strain_ratio" or "shank_strain" in u}
+
+
+def convert(block: np.ndarray, cfg: RigConfig, cals: dict[str, CalRecord],
+            t0_sample: int = 0) -> dict[str, np.ndarray]:
+    """A raw block (rows of ``raw_names``) -> named raw and SI channels, with time (s)."""
+    names = raw_names(cfg)
+    if block.ndim != 2 or block.shape[1] != len(names):
+        raise ValueError(f"block: expected rows of {len(names)} columns {names}, got "
+                         f"shape {block.shape}")
+    cols = {n: block[:, i] for i, n in enumerate(names)}
+    out: dict[str, np.ndarray] = {
+        "time": (cols["sample"] - t0_sample) / cfg.rates.acquisition_hz, **cols}
+    lc = cals["load_cell"]
+    out["force"] = loadcell.to_newtons(cols["load_cell_ratio"], lc.sensitivity, lc.offset)
+    if "strain_ratio" in cols:
+        sg = cals["strain_gauge"]
+        g = cfg.channels.strain_gauge
+        out["shank_strain"] = strain.to_strain(cols["strain_ratio"], sg.sensitivity, sg.offset,
+                                               g.lead_wire_resistance_ohm,
+                                               g.nominal_resistance_ohm)
+    for n, enc in cfg.channels.encoders.items():
+        rec = cals[n]
+        out[enc.channel_name] = encoders.to_si(cols[f"{n}_counts"], rec.sensitivity, rec.offset)
+    return out

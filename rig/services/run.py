@@ -1,0 +1,402 @@
+"""`rig run`: press the key with a force profile and record everything.
+
+    report = run(Path("profiles/forte.yaml"), cfg, trials=3, on_line=print)
+
+The run's process holds the 500 Hz torque loop; a separate acquisition
+process (rig.acquisition) owns the run file and streams the 2 kHz channels.
+Order: validate the profile against the rig's limits (nothing moves if it is
+refused) -> start the acquisition process -> enable the drive -> arm the
+cards -> loop -> zero demand -> disable the drive -> stop acquisition.
+Each cycle: feedforward = profile(t + advance), controller hook (may use the
+load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
+dead acquisition process or too many late cycles in a row set the demand to
+zero in that same cycle, disable the drive and close the file ``aborted: ...``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import gc
+import importlib
+import math
+import multiprocessing as mp
+import queue
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from rig import calrecords, loadcell, motor_torque, profiles, runfile
+from rig.acquisition import COMMAND_UNITS, run_acquisition
+from rig.config import RigConfig
+from rig.daq import Daq, open_daq
+from rig.drive import Drive, DriveError, DriveMonitor
+
+
+class Controller(Protocol):
+    """The loop's feedback hook: the demand (N) from the feedforward and the load cell."""
+
+    def reset(self) -> None: ...
+
+    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float: ...
+
+
+class OpenLoop:
+    """The thesis's open-loop control: the (advanced) profile is the demand."""
+
+    name = "open_loop"
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
+        return feedforward_n
+
+
+def load_controller(spec: str) -> Controller:
+    """``open_loop`` or ``module:Class`` (a class with reset() and __call__)."""
+    if spec == "open_loop":
+        return OpenLoop()
+    mod, _, cls = spec.partition(":")
+    if not mod or not cls:
+        raise ValueError(f"loop.controller: expected 'open_loop' or 'module:Class', got {spec!r}")
+    try:
+        obj: Controller = getattr(importlib.import_module(mod), cls)()
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"loop.controller: cannot load {spec!r} ({exc})") from None
+    return obj
+
+
+@dataclass
+class CycleContext:
+    """What a per-cycle hook sees (tests use it to inject faults)."""
+
+    tick: int
+    trial: int
+    t: float
+    acquisition_pid: int | None
+    sim_drive: Any
+    daq: Daq
+
+
+@dataclass
+class RunReport:
+    path: Path
+    status: str
+    ticks: int
+    lateness: dict[str, float]
+    samples: int | None
+    repeatability: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return self.status == "complete"
+
+
+class _Abort(Exception):
+    pass
+
+
+def lateness_stats(lateness: np.ndarray, missed: np.ndarray, threshold: float) -> dict[str, float]:
+    """Median, 99th percentile and maximum lateness (s), missed ticks and late cycles."""
+    if lateness.size == 0:
+        return {"cycles": 0.0, "median_s": math.nan, "p99_s": math.nan, "max_s": math.nan,
+                "missed": 0.0, "late_cycles": 0.0}
+    return {"cycles": float(lateness.size), "median_s": float(np.median(lateness)),
+            "p99_s": float(np.percentile(lateness, 99)), "max_s": float(lateness.max()),
+            "missed": float(missed.sum()), "late_cycles": float(np.sum(lateness > threshold))}
+
+
+def repeatability(path: Path, channels: tuple[str, ...] = ("force", "shank_strain",
+                                                           "hammer_angle", "key_dip")
+                  ) -> dict[str, dict[str, float]]:
+    """Trial-to-trial spread: RMS deviation of each trial from the mean trace, per channel."""
+    run = runfile.read(path)
+    trials = [t for t in run.trials if t.channels.get("time") is not None
+              and t.channels["time"].size]
+    if len(trials) < 2:
+        return {}
+    n = min(t.channels["time"].size for t in trials)
+    out: dict[str, dict[str, float]] = {}
+    for name in channels:
+        if not all(name in t.channels for t in trials):
+            continue
+        traces = np.array([t.channels[name][:n] for t in trials])
+        mean = traces.mean(axis=0)
+        dev = np.sqrt(np.mean((traces - mean) ** 2, axis=1))
+        span = float(np.ptp(mean)) or 1.0
+        out[name] = {"rms_deviation": float(dev.max()), "range": float(np.ptp(mean)),
+                     "relative": float(dev.max() / span)}
+    return out
+
+
+def _default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return cfg.data_folder / f"{stamp}-{profile.name}.h5"
+
+
+def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
+        lockstep: bool = False, controller: Controller | None = None,
+        on_line: Callable[[str], None] | None = None,
+        on_cycle: Callable[[CycleContext], None] | None = None) -> RunReport:
+    """Run the profile ``trials`` times on the configured rig; write one run file."""
+    say = on_line or (lambda s: None)
+    if trials < 1:
+        raise ValueError(f"trials: expected at least 1, got {trials}")
+    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
+    if cfg.backend == "ni" and cfg.drive.port == "sim":
+        raise ValueError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+    ctl = controller or load_controller(cfg.loop.controller)
+    cals = calrecords.lookup(cfg)
+    path = Path(out) if out is not None else _default_path(cfg, profile)
+    hz = cfg.rates.control_hz
+    dt = 1.0 / hz
+    spc = cfg.rates.samples_per_cycle
+    settle = int(round(cfg.loop.settle_s * hz))
+    dur = int(math.ceil(profile.duration * hz - 1e-9)) + 1
+    rest = int(round(cfg.loop.rest_s * hz))
+    per_trial = settle + dur + rest
+    total = per_trial * trials
+    metadata: dict[str, Any] = {
+        "rig_config": cfg.to_yaml(),
+        "profile": {**profile.to_metadata(), "time": profile.time.tolist(),
+                    "force": profile.force.tolist()},
+        "calibrations": [r.to_dict() for r in cals.values()],
+        "run": {"trials": trials, "advance_s": cfg.loop.advance_s, "lockstep": lockstep,
+                "controller": getattr(ctl, "name", type(ctl).__name__),
+                "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
+                "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
+    }
+
+    daq = open_daq(cfg, lockstep=lockstep)
+    sim_drive = None
+    ctx = mp.get_context("spawn")
+    ctrl: Any = ctx.Queue()
+    status_q: Any = ctx.Queue()
+    proc: Any = None
+    drive: Drive | None = None
+    monitor: DriveMonitor | None = None
+    rows: list[list[float]] = []
+    sent = [0] * trials
+    reason: str | None = None
+    last_tick = -1
+    interrupted = {"flag": False}
+    old_handler: Any = None
+    try:
+        if cfg.drive.port == "sim":
+            from rig.sim_backend.daq import SimDaq
+            from rig.sim_backend.drive_pty import SimDrive
+
+            assert isinstance(daq, SimDaq)
+            sim_drive = SimDrive(cfg.drive, daq.rig.drive_state)
+            drive = Drive(cfg.drive, sim_drive.port)
+        else:
+            drive = Drive(cfg.drive)
+        proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
+            daq.reader_spec(), cfg.model_dump(mode="json"),
+            {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))
+        proc.start()
+        _expect(status_q, proc, "ready", cfg.acquisition.start_timeout_s)
+        for k in range(trials):
+            ctrl.put(("trial", k, k * per_trial * spc, (k * per_trial + settle) * spc))
+        drive.enable()
+        monitor = DriveMonitor(drive, cfg.drive.poll_period_s)
+        monitor.start()
+        daq.arm()
+        ctrl.put(("go",))
+        _expect(status_q, proc, "started", cfg.acquisition.start_timeout_s)
+        say(f"running {profile.name} ({profile.duration:.3f} s, peak {profile.peak:g} N) x "
+            f"{trials} on {cfg.backend} rig{' in lock-step' if daq_lockstep(daq) else ''}")
+
+        old_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.update(flag=True))
+        limiter = motor_torque.Limiter(cfg.limits, dt)
+        scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
+                                                         cfg.channels.drive_output)
+        lc = cals["load_cell"]
+        streak = 0
+        trial_now = -1
+        gc.collect()
+        gc.disable()
+        while True:
+            tick = daq.wait_for_tick()
+            i = tick.index
+            if i >= total:
+                break
+            k, local = divmod(i, per_trial)
+            t = (local - settle) * dt
+            late = tick.lateness_s > cfg.limits.late_threshold_s or tick.missed > 0
+            streak = streak + 1 if late else 0
+            if interrupted["flag"]:
+                reason = "interrupted (Ctrl-C)"
+            elif monitor.fault:
+                reason = monitor.fault
+            elif not proc.is_alive():
+                reason = f"the acquisition process died (exit code {proc.exitcode})"
+            elif streak > cfg.limits.max_late_cycles_in_a_row:
+                reason = (f"{streak} late cycles in a row (limit "
+                          f"{cfg.limits.max_late_cycles_in_a_row}, lateness "
+                          f"{tick.lateness_s * 1e3:.2f} ms)")
+            if reason is not None:
+                daq.write_volts(0.0)
+                rows.append([t, i, 0.0, 0.0, 0.0, 0.0, 0.0, math.nan, tick.lateness_s,
+                             tick.missed, k])
+                last_tick = i
+                break
+            if k != trial_now:
+                trial_now = k
+                ctl.reset()
+                limiter.reset(0.0)
+                if k:
+                    say(f"trial {k + 1} of {trials}")
+            _, ratio = daq.feedback_ratio()
+            measured = float(loadcell.to_newtons(ratio, lc.sensitivity, lc.offset))
+            target = float(profile.at(t)) if t >= 0 else 0.0
+            ff = motor_torque.feedforward(profile, t, cfg.loop.advance_s)
+            demand, limited = limiter(float(ctl(t, ff, measured)))
+            volts = scaling.volts(demand)
+            daq.write_volts(volts)
+            last_tick = i
+            rows.append([t, i, target, ff, demand, volts, float(limited), measured,
+                         tick.lateness_s, tick.missed, k])
+            if on_cycle is not None:
+                on_cycle(CycleContext(i, k, t, proc.pid, sim_drive, daq))
+            if len(rows) - sum(sent) >= 50:
+                _send_commands(ctrl, rows, sent)
+    except _Abort as exc:
+        reason = str(exc)
+    except KeyboardInterrupt:
+        reason = "interrupted (Ctrl-C)"
+    except (DriveError, RuntimeError, OSError) as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+    finally:
+        gc.enable()
+        _safe(lambda: daq.write_volts(0.0))
+        if drive is not None and drive.enabled:
+            _safe(drive.disable)
+        if monitor is not None:
+            monitor.stop()
+        if old_handler is not None:
+            signal.signal(signal.SIGINT, old_handler)
+
+    status = "complete" if reason is None else f"aborted: {reason}"
+    arr = np.array(rows, dtype=float).reshape(-1, 11)
+    stats = lateness_stats(arr[:, 8], arr[:, 9], cfg.limits.late_threshold_s)
+    try:
+        samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
+                          (last_tick + 1) * spc, path, cfg)
+    finally:
+        daq.close()
+        if drive is not None:
+            _safe(drive.close)
+        if sim_drive is not None:
+            sim_drive.close()
+    final = runfile.read(path).status
+    rep = repeatability(path) if trials > 1 else {}
+    if rep:
+        w = runfile.RunWriter.reopen(path)
+        w.add_metadata("repeatability", rep)
+        w.close(final)
+    return RunReport(path, final, last_tick + 1, stats, samples, rep)
+
+
+def daq_lockstep(daq: Daq) -> bool:
+    return bool(getattr(daq, "lockstep", False))
+
+
+def _safe(fn: Callable[[], Any]) -> None:
+    """Run a cleanup step; cleanup must go on (the drive and the file matter more)."""
+    with contextlib.suppress(Exception):
+        fn()
+
+
+def _expect(status_q: Any, proc: Any, what: str, timeout: float) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            msg = status_q.get(timeout=0.1)
+        except queue.Empty:
+            if not proc.is_alive():
+                raise _Abort(f"the acquisition process died while starting (exit code "
+                             f"{proc.exitcode})") from None
+            continue
+        if msg[0] == what:
+            return
+        if msg[0] == "error":
+            raise _Abort(f"acquisition: {msg[1].splitlines()[0]}")
+    raise _Abort(f"the acquisition process did not report {what!r} within {timeout} s")
+
+
+_COLS = ("time", "tick", "target", "feedforward", "demand", "volts", "limited",
+         "measured_force", "lateness", "missed")
+
+
+def _send_commands(ctrl: Any, rows: list[list[float]], sent: list[int]) -> None:
+    """Send the rows not yet sent, per trial (``sent[k]`` counts rows of trial k sent)."""
+    done = sum(sent)
+    arr = np.array(rows[done:], dtype=float).reshape(-1, 11)
+    for k in np.unique(arr[:, 10]).astype(int):
+        part = arr[arr[:, 10] == k]
+        ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
+        sent[k] += part.shape[0]
+
+
+def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: list[int],
+            trials: int, status: str, stats: dict[str, float], end_sample: int, path: Path,
+            cfg: RigConfig) -> int | None:
+    """Stop the acquisition process and see the file closed; recover it if the process died."""
+    meta = {"loop_lateness": stats}
+    tattrs: dict[int, dict[str, Any]] = {}
+    if proc is None:
+        return None
+    if proc.is_alive():
+        _send_commands(ctrl, rows, sent)
+        ctrl.put(("stop", end_sample, status, meta, tattrs))
+        proc.join(timeout=30.0)
+    msgs = []
+    while True:
+        try:
+            msgs.append(status_q.get(timeout=0.2))
+        except queue.Empty:
+            break
+    done = [m for m in msgs if m[0] == "done"]
+    errors = [m[1].splitlines()[0] for m in msgs if m[0] == "error"]
+    if proc.is_alive():
+        proc.kill()
+        proc.join(timeout=5.0)
+        errors.append("the acquisition process did not stop; killed")
+    ctrl.close()
+    status_q.close()
+    if done and proc.exitcode == 0:
+        return int(done[0][1])
+    # the acquisition process died or failed: finish the file here
+    why = errors[0] if errors else f"the acquisition process died (exit code {proc.exitcode})"
+    final = status if status.startswith("aborted") else f"aborted: {why}"
+    if errors and "acquisition process died" in status:
+        final = f"aborted: {errors[0]}"
+    if not path.is_file():
+        return None
+    w = runfile.RunWriter.reopen(path)
+    arr = np.array(rows, dtype=float).reshape(-1, 11)
+    for k in range(trials):
+        part = arr[arr[:, 10] == k]
+        if not part.shape[0]:
+            continue
+        grp = f"trial_{k:03d}"
+        have = 0
+        if grp in w.file and "commands" in w.file[grp] and "time" in w.file[grp]["commands"]:
+            have = int(w.file[grp]["commands"]["time"].shape[0])
+        tw = w.trial(k)
+        if have < part.shape[0]:
+            tw.append("commands", {c: part[have:, j] for j, c in enumerate(_COLS)},
+                      COMMAND_UNITS)
+    w.add_metadata("loop_lateness", stats)
+    if errors and final != f"aborted: {errors[0]}":
+        w.add_metadata("acquisition_error", errors[0])
+    w.close(final)
+    return None

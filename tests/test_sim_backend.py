@@ -1,0 +1,96 @@
+"""The simulated rig's parts: drive model, sensor models, card buffer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig import config, loadcell, strain
+from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.fifo import BufferOverflow, SharedFifo
+from rig.sim_backend.sensors import SensorSet
+
+DT = 0.0005
+
+
+def ramp_response(variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    m = DriveModel(DT, variant)
+    t = np.arange(0, 0.2, 0.002)
+    u = np.clip((t - 0.02) / 0.03, 0, 1) * 30.0  # the forte ramp, held at 500 Hz
+    out = np.concatenate([m.step(float(ui), 4) for ui in u])
+    return np.arange(1, out.size + 1) * DT, np.repeat(u, 4), out
+
+
+def test_drive_model_lags_about_7_ms_and_settles_to_gain() -> None:
+    t, u, y = ramp_response("all")
+    assert y[-1] / 30.0 == pytest.approx(0.9322, rel=1e-3)
+    half_u = t[np.argmax(u >= 15.0)]
+    half_y = t[np.argmax(y >= 15.0 * 0.9322)]
+    assert 0.005 < half_y - half_u < 0.010  # the thesis's ~8 ms open-loop lag
+
+
+def test_drive_model_rise_and_fall_differ() -> None:
+    m1, m2 = DriveModel(DT, "rise_fall"), DriveModel(DT, "all")
+    for m in (m1, m2):
+        m.step(20.0, 200)
+    f1, f2 = m1.step(0.0, 40), m2.step(0.0, 40)
+    assert not np.allclose(f1, f2, atol=0.05)  # the decreasing model is slower (Tw 7.6)
+    assert f1[-1] > f2[-1]
+    with pytest.raises(ValueError, match="variant"):
+        DriveModel(DT, "both")
+
+
+def test_sensor_models_differ_from_nominal_and_are_seeded() -> None:
+    cfg = config.builtin_sim()
+    a, b = SensorSet.from_config(cfg), SensorSet.from_config(cfg)
+    assert a.truth() == b.truth()
+    nom = loadcell.nominal_sensitivity(cfg.channels.load_cell)
+    assert a.load_cell.sensitivity != nom
+    assert abs(a.load_cell.sensitivity / nom - 1) < 0.1
+    assert SensorSet.from_config(cfg, seed=99).truth() != a.truth()
+
+
+def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
+    cfg = config.builtin_sim()
+    lc = SensorSet.from_config(cfg).load_cell
+    f = np.r_[np.zeros(200), np.full(4000, 20.0)]
+    n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
+    settled = n[2000:]
+    assert settled.mean() == pytest.approx(20.0, abs=0.05)
+    assert settled.std() == pytest.approx(cfg.sim.load_cell_noise_n, rel=0.15)
+    assert 3 * settled.std() < 0.8  # the spec's 0.67 N max error
+    # 100 Hz 4-pole Butterworth: ~4.2 ms group delay (about 8-9 samples at 2 kHz)
+    assert 7 <= np.argmax(n > 10.0) - 200 <= 11
+
+
+def test_strain_formula_round_trip_and_size() -> None:
+    e = np.array([-1e-3, 0.0, 5e-4, 1e-3])
+    r = strain.to_ratio(e, 2.0, 1e-4, 0.5, 350.0)
+    assert strain.to_strain(r, 2.0, 1e-4, 0.5, 350.0) == pytest.approx(e, abs=1e-12)
+    # ~0.5 mV/V at 1000 microstrain for GF 2
+    assert abs(strain.to_ratio(1e-3, 2.0, 0.0)) == pytest.approx(0.5e-3, rel=0.01)
+
+
+def test_encoders_quantise_at_their_resolution() -> None:
+    sensors = SensorSet.from_config(config.builtin_sim())
+    hammer = sensors.encoders["hammer"]
+    step = abs(hammer.si_per_count)
+    c = hammer.counts(np.array([0.0, 0.4 * step, 0.6 * step, 1.0]))
+    assert list(c[:3]) == [0, 0, 1]
+    assert c[3] == pytest.approx(1.0 / hammer.si_per_count, abs=0.5)
+    assert abs(hammer.nominal_si_per_count) == pytest.approx(2 * np.pi / 163840)
+
+
+def test_fifo_detects_overwritten_samples() -> None:
+    w = SharedFifo(8, 2)
+    r = SharedFifo.attach(w.spec)
+    try:
+        w.write(np.arange(12.0).reshape(6, 2))
+        assert r.read().shape == (6, 2)
+        w.write(np.ones((6, 2)))
+        w.write(np.ones((4, 2)))  # 10 unread > 8: overwritten
+        with pytest.raises(BufferOverflow, match="overwritten"):
+            r.read()
+    finally:
+        r.close()
+        w.close()
