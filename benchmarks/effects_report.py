@@ -38,8 +38,9 @@ def main() -> None:
     tip = flex.channels["shank_tip_deflection"]
     around = (t > ev["strike"] - 0.002) & (t < ev["string_release"] + 0.002)
     before = t < ev["strike"]
-    print(f"flexible shank: largest tip deflection around the strike {np.abs(tip[around]).max()*1e3:.2f}"
-          f" mm ({np.abs(tip[around]).max() / 0.086 * 100:.2f} % of the shank), backward while "
+    peak = np.abs(tip[around]).max()
+    print(f"flexible shank: largest tip deflection around the strike {peak * 1e3:.2f}"
+          f" mm ({peak / 0.086 * 100:.2f} % of the shank), backward while "
           f"accelerating {tip[before].min() * 1e3:.2f} mm; strain "
           f"{flex.channels['shank_strain'].min() * 1e6:.0f} to "
           f"{flex.channels['shank_strain'].max() * 1e6:.0f} microstrain")

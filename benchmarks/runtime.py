@@ -23,11 +23,13 @@ from rig.acquisition import Acquisition
 from rig.services import run as svc
 
 
-def bare_loop(seconds: float, q: mp.Queue, go: Any) -> None:
-    """A 500 Hz pacing loop doing no work (the VM's own stalls), in its own process."""
+def bare_loop(seconds: float, q: mp.Queue, go: Any, priority: int) -> None:
+    """A 500 Hz pacing loop doing no work (the VM's own stalls), in its own process, paced and
+    scheduled as the run's loop is (sleep then spin, timer slack, the same real-time class)."""
     pacing.set_timer_slack()
     q.put("ready")
     go.wait()
+    rt = pacing.realtime_priority(priority)
     dt = 0.002
     n = int(seconds / dt)
     late = np.empty(n)
@@ -44,23 +46,28 @@ def bare_loop(seconds: float, q: mp.Queue, go: Any) -> None:
         late[k] = now - (t0 + i * dt)
         k += 1
         i += 1
-    q.put((float(np.median(late)), float(np.percentile(late, 99)), float(late.max()), missed))
+    q.put((float(np.median(late)), float(np.percentile(late, 99)), float(late.max()), missed,
+           rt))
 
 
-def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False) -> None:
+def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False,
+                   priority: int | None = None) -> None:
     prof = tmp / "long.yaml"
     prof.write_text("name: long\nsegments:\n  - {hold: 0.02}\n  - {ramp: 0.08, to: 30}\n"
                     "  - {hold: 0.2}\n  - {ramp: 0.04, to: 0}\n  - {hold: 0.26}\n")
     trials = int(np.ceil(seconds / 1.0))
     # measure, do not abort: a late streak is reported in the figures instead
-    cfg = config.builtin_sim(loop={"rest_s": 0.3}, data_folder=str(tmp),
+    loop: dict[str, Any] = {"rest_s": 0.3}
+    if priority is not None:
+        loop["realtime_priority"] = priority
+    cfg = config.builtin_sim(loop=loop, data_folder=str(tmp),
                              limits={"max_late_cycles_in_a_row": 100000},
                              **({"sim": {"effects": []}, "channels": {"strain_gauge": {
                                  "enabled": False}}} if rigid else {}))
     ctx = mp.get_context("spawn")
     q: mp.Queue = ctx.Queue()
     go = ctx.Event()
-    bare = ctx.Process(target=bare_loop, args=(trials * 1.0, q, go))
+    bare = ctx.Process(target=bare_loop, args=(trials * 1.0, q, go, cfg.loop.realtime_priority))
     bare.start()
     assert q.get(timeout=60) == "ready"
 
@@ -82,9 +89,15 @@ def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False) -> None:
           f"{lat['late_cycles']:.0f}")
     print(f"  bare loop:     median {b[0] * 1e3:.3f} ms, p99 {b[1] * 1e3:.3f} ms, max "
           f"{b[2] * 1e3:.3f} ms, missed {b[3]}")
+    print(f"  scheduling: rig loop {_sched(lat['realtime_priority'])}, bare loop "
+          f"{_sched(cfg.loop.realtime_priority if b[4] else 0)}")
     print(f"  ratio p99 rig/bare {lat['p99_s'] / max(b[1], 1e-9):.1f}; p99 target 0.5 ms: "
           f"{'met' if lat['p99_s'] < 5e-4 else 'NOT met'}; missed rig {lat['missed']:.0f} vs "
           f"bare {b[3]}")
+
+
+def _sched(priority: float) -> str:
+    return f"SCHED_FIFO {priority:.0f}" if priority else "normal (SCHED_OTHER)"
 
 
 def acquisition_benchmark(tmp: Path, seconds: float = 5.0) -> None:
@@ -127,10 +140,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=32.0)
     ap.add_argument("--rigid", action="store_true", help="rigid model, no strain gauge")
+    ap.add_argument("--priority", type=int, default=None,
+                    help="loop.realtime_priority for both loops (0 = normal scheduling)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        loop_benchmark(args.seconds, tmp, args.rigid)
+        loop_benchmark(args.seconds, tmp, args.rigid, args.priority)
         acquisition_benchmark(tmp)
 
 
