@@ -81,7 +81,8 @@ def main() -> None:
         dv = abs(m["strike_speed_m_s"] / r["strike_speed_m_s"] - 1) * 100
         gain = r["wall_best_s"] / m["wall_best_s"]
         print(f"[{name}] reference scipy BDF, plain numpy RHS: wall {r['wall_best_s']:.1f} s "
-              f"({r['rhs_calls']:.0f} RHS calls); speed-up {gain:.0f}x; strike {r['strike_s'] * 1e3:.3f} ms at {r['strike_speed_m_s']:.4f} m/s")
+              f"({r['rhs_calls']:.0f} RHS calls); speed-up {gain:.0f}x; strike "
+              f"{r['strike_s'] * 1e3:.3f} ms at {r['strike_speed_m_s']:.4f} m/s")
         print(f"[{name}] agreement: strike time {dt:.4f} ms (target <= 0.1) "
               f"{'OK' if dt <= 0.1 else 'MISSED'}, strike speed {dv:.3f} % (target <= 1) "
               f"{'OK' if dv <= 1 else 'MISSED'}")
