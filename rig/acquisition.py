@@ -44,7 +44,9 @@ COMMAND_DOCS = {
     "time": "trial time of the loop tick (0 = profile start)",
     "tick": "index of the 500 Hz tick on the rig's clock",
     "target": "profile force at this time",
-    "feedforward": "profile force advance_s ahead (open-loop lag compensation)",
+    "feedforward": "open-loop demand: the profile advance_s ahead, or with a motor "
+                   "calibration its inverse force map of the profile lag_s ahead "
+                   "(metadata run.compensation)",
     "demand": "force demanded after the controller and the limits",
     "volts": "analog output to the drive",
     "limited": "1 where a force or rate limit changed the demand",

@@ -166,7 +166,10 @@ def run_profile(
     _plain(f"loop: {int(lat['cycles'])} cycles at {cfg.rates.control_hz:g} Hz, lateness "
                   f"median {lat['median_s'] * 1e3:.3f} ms, p99 {lat['p99_s'] * 1e3:.3f} ms, "
                   f"max {lat['max_s'] * 1e3:.3f} ms, missed {int(lat['missed'])}, late "
-                  f"{int(lat['late_cycles'])}")
+                  f"{int(lat['late_cycles'])}, "
+                  + (f"real-time priority {int(lat['realtime_priority'])}"
+                     if lat.get("realtime_priority") else "normal scheduling (no real-time "
+                     "priority: see docs/running.md)"))
     if report.samples is not None:
         _plain(f"acquisition: {report.samples} samples at "
                       f"{cfg.rates.acquisition_hz:g} Hz, no gap")
@@ -446,6 +449,10 @@ def diagnose_cmd(
     for line in diag.report_lines():
         console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)
+    if write is not None and diag.best is None:
+        err.print(f"no candidate explains the residual significantly; {write} was not written",
+                  markup=False, highlight=False)
+        raise typer.Exit(code=1)
     if write is not None:
         console.print(f"wrote {write}", markup=False, highlight=False)
     if report is not None:

@@ -18,6 +18,7 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from rig.calibration.settings import CalibrationSettings
 from rig.params import load_yaml_file
 
 
@@ -212,6 +213,8 @@ class Loop(_Strict):
     rest_s: float = Field(1.0, ge=0, description="rest between trials")
     settle_s: float = Field(0.1, ge=0, description="zero demand recorded before each trial")
     controller: str = Field("open_loop", description="open_loop, or module:Class of a controller")
+    realtime_priority: int = Field(10, ge=0, le=99, description="SCHED_FIFO priority of the "
+                                   "loop's thread where the OS permits it (0 = normal class)")
 
 
 class Acquisition(_Strict):
@@ -251,6 +254,7 @@ class RigConfig(_Strict):
     acquisition: Acquisition = Acquisition()
     data_folder: Path = Path("runs")
     sim: Sim = Sim()
+    calibration: CalibrationSettings = CalibrationSettings()
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)

@@ -3,11 +3,17 @@
 On this kind of VM, sleeping to 0.5 ms before a deadline and then spinning on
 ``perf_counter`` wakes within ~1 us (median) where a plain sleep is ~100 us
 late (see docs/performance.md). A 1 ns timer slack makes the sleep tighter.
+When other processes load the machine, only a real-time scheduling class keeps
+the loop on time: ``realtime_priority`` puts the calling thread in SCHED_FIFO
+where the OS permits it (root or CAP_SYS_NICE / an rtprio limit), for the
+loop's thread only (child processes and other threads keep their class).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import os
 import time
 
 PR_SET_TIMERSLACK = 29
@@ -31,3 +37,20 @@ def sleep_until(deadline: float, spin_s: float = SPIN_S) -> float:
     while (now := time.perf_counter()) < deadline:
         pass
     return now
+
+
+def realtime_priority(priority: int) -> bool:
+    """Put the calling thread in SCHED_FIFO at ``priority`` (1-99); False where not permitted."""
+    if priority <= 0:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError):
+        return False
+    return True
+
+
+def normal_priority() -> None:
+    """Back to the normal time-sharing class (SCHED_OTHER) for the calling thread."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))

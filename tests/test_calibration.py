@@ -12,6 +12,7 @@ from unittest import mock
 import nidaqmx
 import numpy as np
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from rig import calrecords, config, profiles, runfile
@@ -38,14 +39,24 @@ def sim(tmp_path: Path, seed: int = 4) -> config.RigConfig:
                                 "loop": {"rest_s": 0.1}, "data_folder": str(tmp_path)})
 
 
-class CalRig(config.RigConfig):
-    """A rig config carrying the calibration section (as RigConfig.calibration will)."""
-
-    calibration: CalibrationSettings = CalibrationSettings()
+def with_cal(cfg: config.RigConfig, **settings) -> config.RigConfig:
+    return config.from_mapping({**cfg.model_dump(mode="json"), "calibration": settings})
 
 
-def with_cal(cfg: config.RigConfig, **settings) -> CalRig:
-    return CalRig.model_validate({**cfg.model_dump(), "calibration": settings})
+def test_rig_config_carries_calibration_settings(tmp_path: Path) -> None:
+    cfg = with_cal(sim(tmp_path), max_age_days=7, required=["load_cell"],
+                   load_cell={"min_points": 6})
+    assert isinstance(cfg.calibration, CalibrationSettings)
+    assert cfg.calibration.max_age_days == 7 and cfg.calibration.load_cell.min_points == 6
+    assert config.from_mapping(yaml.safe_load(cfg.to_yaml())) == cfg  # YAML round trip
+    assert config.builtin_sim().calibration == CalibrationSettings()
+    for bad, words in (({"max_age_days": 0}, "calibration.max_age_days: Input should be "
+                                             "greater than 0"),
+                       ({"motor": {"step_hold_s": "long"}}, "calibration.motor.step_hold_s: "),
+                       ({"shunt": 1}, "calibration.shunt: unknown field")):
+        with pytest.raises(ValueError, match="^rig config: " + words) as exc:
+            with_cal(sim(tmp_path), **bad)
+        assert "\n" not in str(exc.value)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -190,8 +201,56 @@ def test_run_embeds_the_records_it_used(tmp_path: Path) -> None:
     assert all(c["nominal"] for c in cals)
     _, path = svc.calibrate_loadcell(cfg, MASSES)
     rep = run_svc.run(ROOT / "profiles" / "piano.yaml", cfg, out=tmp_path / "b.h5")
-    cals = {c["sensor"]: c for c in runfile.read(rep.path).metadata["calibrations"]}
+    meta = runfile.read(rep.path).metadata
+    cals = {c["sensor"]: c for c in meta["calibrations"]}
     assert not cals["load_cell"]["nominal"] and path.name in cals["load_cell"]["source"]
+    # the full record is embedded, not only a pointer: it verifies and equals the file
+    [full] = meta["calibration_records"]
+    assert full == records.read(path) and full["content_hash"] == records.content_hash(full)
+    assert full["raw_points"] and full["uncertainty"]
+
+
+def test_loop_feedforward_uses_the_motor_calibration_when_there_is_one(tmp_path: Path) -> None:
+    from rig.services import run as run_svc
+
+    cfg = sim(tmp_path)
+    forte = profiles.load(ROOT / "profiles" / "forte.yaml")
+    ff, what = run_svc.demand_source(cfg, records.embedded(calrecords.lookup(cfg), cfg))
+    assert what["kind"] == "advance" and what["lead_s"] == 0.008
+    assert ff(forte, 0.05) == pytest.approx(float(forte.at(0.058)))
+    result, path, _ = svc.calibrate_motor(cfg)
+    full = records.embedded(calrecords.lookup(cfg), cfg)
+    assert [r["sensor"] for r in full] == ["motor"]
+    ff, what = run_svc.demand_source(cfg, full)
+    comp = result.compensation
+    assert what["kind"] == "motor calibration" and what["record"] == records.read(path)[
+        "content_hash"]
+    assert what["lead_s"] == pytest.approx(comp.lag_s) and comp.lag_s != 0.008
+    for t in (-0.05, 0.01, 0.05, 0.09):
+        assert ff(forte, t) == pytest.approx(comp.demand_at(forte, t))
+    # the inverse map asks for more than the profile where the motor gives less (gain < 1)
+    assert ff(forte, 0.07) > float(forte.at(0.07 + comp.lag_s)) > 0
+
+
+@pytest.mark.slow
+def test_motor_calibration_reduces_the_runs_tracking_error(tmp_path: Path) -> None:
+    """Through `rig run` (lock-step): no advance, the default 8 ms advance, then after
+    `rig calibrate motor` -- the compensated run tracks the forte profile best."""
+    from rig.services import run as run_svc
+
+    forte = ROOT / "profiles" / "forte.yaml"
+    cfg = sim(tmp_path)
+    none = run_svc.run(forte, config.from_mapping({**cfg.model_dump(mode="json"),
+                                                    "loop": {"rest_s": 0.1, "advance_s": 0}}),
+                       out=tmp_path / "none.h5")
+    adv = run_svc.run(forte, cfg, out=tmp_path / "adv.h5")
+    svc.calibrate_motor(cfg)
+    comp = run_svc.run(forte, cfg, out=tmp_path / "comp.h5")
+    kinds = [runfile.read(r.path).metadata["run"]["compensation"]["kind"]
+             for r in (none, adv, comp)]
+    assert kinds == ["advance", "advance", "motor calibration"]
+    e = [run_svc.tracking_error(r.path)["max_error_pct"] for r in (none, adv, comp)]
+    assert e[2] < e[1] < e[0], e
 
 
 def test_motor_map_lag_and_forte_tracking(tmp_path: Path) -> None:

@@ -1,20 +1,22 @@
 """Calibration settings: where records live, how old they may be, the references' tolerances.
 
-The rig configuration carries them as ``calibration:`` when it has that field
-(``RigConfig.calibration: CalibrationSettings``); until then the defaults
-below apply, with records in ``<data_folder>/calibrations``. SI units;
-tolerances are half-widths of rectangular distributions (data-sheet style).
+The rig configuration carries them as its ``calibration:`` section
+(``RigConfig.calibration: CalibrationSettings``, documented in
+docs/rig-config.md); records live in ``<data_folder>/calibrations`` unless
+``records_folder`` says otherwise. SI units; tolerances are half-widths of
+rectangular distributions (data-sheet style).
 """
 
 from __future__ import annotations
 
 import getpass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from rig.config import RigConfig
+if TYPE_CHECKING:  # rig.config imports this module for RigConfig.calibration
+    from rig.config import RigConfig
 
 
 class _Strict(BaseModel):

@@ -7,8 +7,9 @@ process (rig.acquisition) owns the run file and streams the 2 kHz channels.
 Order: validate the profile against the rig's limits (nothing moves if it is
 refused) -> start the acquisition process -> enable the drive -> arm the
 cards -> loop -> zero demand -> disable the drive -> stop acquisition.
-Each cycle: feedforward = profile(t + advance), controller hook (may use the
-load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
+Each cycle: feedforward = profile(t + advance) -- or, when a motor calibration
+record is in use, its inverse force map of profile(t + lag) -- controller hook
+(may use the load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
 """
@@ -23,6 +24,7 @@ import math
 import multiprocessing as mp
 import queue
 import signal
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,8 +33,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from rig import calrecords, loadcell, motor_torque, profiles, runfile
+from rig import calrecords, loadcell, motor_torque, pacing, profiles, runfile
 from rig.acquisition import COMMAND_UNITS, run_acquisition
+from rig.calibration import motor as motor_cal
+from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.daq import Daq, open_daq
 from rig.drive import Drive, DriveError, DriveMonitor
@@ -135,6 +139,44 @@ def repeatability(path: Path, channels: tuple[str, ...] = ("force", "shank_strai
     return out
 
 
+def demand_source(cfg: RigConfig, full_records: list[dict[str, Any]]
+                  ) -> tuple[Callable[[profiles.Profile, float], float], dict[str, Any]]:
+    """The loop's feedforward and what it is: the motor calibration's compensation (inverse
+    static map of the profile ``lag_s`` ahead) when the run uses a motor record, else the
+    profile ``loop.advance_s`` ahead (the thesis's open-loop lag compensation)."""
+    rec = next((r for r in full_records if r.get("sensor") == "motor"), None)
+    if rec is None:
+        advance = cfg.loop.advance_s
+
+        def ahead(profile: profiles.Profile, t: float) -> float:
+            return motor_torque.feedforward(profile, t, advance)
+
+        return ahead, {"kind": "advance", "lead_s": advance,
+                       "source": "loop.advance_s (no motor calibration record)"}
+    comp = motor_cal.compensation_from_record(rec)
+    return comp.demand_at, {"kind": "motor calibration", "lead_s": comp.lag_s,
+                            "map_demand_n": list(comp.map_demand_n),
+                            "map_force_n": list(comp.map_force_n),
+                            "record": rec["content_hash"], "created": rec["created"]}
+
+
+def tracking_error(path: Path, trial: int = 0, tail_s: float = 0.05) -> dict[str, float]:
+    """How well the measured force followed the profile in a run file: maximum and RMS of
+    |force(t) - profile(t)| from the profile's start to ``tail_s`` after its end, the
+    maximum as % of the profile's peak (the thesis's tracking measure, unshifted)."""
+    run_ = runfile.read(path)
+    tr = run_.trials[trial]
+    prof = run_.metadata["profile"]
+    pt, pf = np.asarray(prof["time"], float), np.asarray(prof["force"], float)
+    t, f = tr.channels["time"], tr.channels["force"]
+    keep = (t >= 0) & (t <= pt[-1] + tail_s)
+    err = np.abs(f[keep] - np.interp(t[keep], pt, pf))
+    peak = float(pf.max())
+    return {"max_error_pct": float(err.max() / peak * 100), "max_error_n": float(err.max()),
+            "rms_error_n": float(np.sqrt(np.mean(err ** 2))), "peak_n": peak,
+            "samples": int(keep.sum())}
+
+
 def _default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
     return cfg.data_folder / f"{stamp}-{profile.name}.h5"
@@ -154,6 +196,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         raise ValueError("drive.port: 'sim' (the simulated drive) needs backend: sim")
     ctl = controller or load_controller(cfg.loop.controller)
     cals = calrecords.lookup(cfg)
+    full_records = cal_records.embedded(cals, cfg)
+    feedforward, compensation = demand_source(cfg, full_records)
     path = Path(out) if out is not None else _default_path(cfg, profile)
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
@@ -168,7 +212,9 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         "profile": {**profile.to_metadata(), "time": profile.time.tolist(),
                     "force": profile.force.tolist()},
         "calibrations": [r.to_dict() for r in cals.values()],
-        "run": {"trials": trials, "advance_s": cfg.loop.advance_s, "lockstep": lockstep,
+        "calibration_records": full_records,
+        "run": {"trials": trials, "advance_s": compensation["lead_s"], "lockstep": lockstep,
+                "compensation": compensation,
                 "controller": getattr(ctl, "name", type(ctl).__name__),
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
@@ -188,13 +234,15 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     last_tick = -1
     interrupted = {"flag": False}
     old_handler: Any = None
+    old_switch = sys.getswitchinterval()
+    realtime = False
     try:
         if cfg.drive.port == "sim":
             from rig.sim_backend.daq import SimDaq
             from rig.sim_backend.drive_pty import SimDrive
 
             assert isinstance(daq, SimDaq)
-            sim_drive = SimDrive(cfg.drive, daq.rig.drive_state)
+            sim_drive = SimDrive(cfg.drive, daq.drive_state)
             drive = Drive(cfg.drive, sim_drive.port)
         else:
             drive = Drive(cfg.drive)
@@ -222,7 +270,12 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         streak = 0
         trial_now = -1
         gc.collect()
+        gc.freeze()  # keep the collector out of the loop (it would scan these objects)
         gc.disable()
+        # the loop's thread gets the GIL back quickly from the drive monitor's thread, and
+        # (where permitted) a real-time class so other processes cannot delay its ticks
+        sys.setswitchinterval(2e-4)
+        realtime = pacing.realtime_priority(cfg.loop.realtime_priority)
         while True:
             tick = daq.wait_for_tick()
             i = tick.index
@@ -257,7 +310,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             _, ratio = daq.feedback_ratio()
             measured = float(loadcell.to_newtons(ratio, lc.sensitivity, lc.offset))
             target = float(profile.at(t)) if t >= 0 else 0.0
-            ff = motor_torque.feedforward(profile, t, cfg.loop.advance_s)
+            ff = feedforward(profile, t)
             demand, limited = limiter(float(ctl(t, ff, measured)))
             volts = scaling.volts(demand)
             daq.write_volts(volts)
@@ -275,8 +328,12 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     except (DriveError, RuntimeError, OSError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
     finally:
-        gc.enable()
         _safe(lambda: daq.write_volts(0.0))
+        if realtime:
+            pacing.normal_priority()
+        sys.setswitchinterval(old_switch)
+        gc.enable()
+        gc.unfreeze()
         if drive is not None and drive.enabled:
             _safe(drive.disable)
         if monitor is not None:
@@ -287,6 +344,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     status = "complete" if reason is None else f"aborted: {reason}"
     arr = np.array(rows, dtype=float).reshape(-1, 11)
     stats = lateness_stats(arr[:, 8], arr[:, 9], cfg.limits.late_threshold_s)
+    stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
     try:
         samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
                           (last_tick + 1) * spc, path, cfg)

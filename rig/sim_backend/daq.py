@@ -1,15 +1,23 @@
 """The simulated rig as a DAQ (loop side) and its reader (acquisition process side).
 
 The rig's clock is ``perf_counter`` in real time (ticks every control period
-from ``arm``; a late loop finds the clock has moved on and the rig keeps
-holding the last output, like the card) or the loop itself in lock-step (each
-tick comes as soon as the loop asks; the card buffer makes the loop wait for
-the acquisition process rather than overflow).
+from the loop's first wait; a late loop finds the clock has moved on and the
+rig keeps holding the last output, like the card) or the loop itself in
+lock-step (each tick comes as soon as the loop asks; the card buffer makes
+the loop wait for the acquisition process rather than overflow).
+
+Real time: the physics (drive, action, sensors) runs in its own process
+(``rig.sim_backend.plant``), so the loop only paces and writes, as on the real
+cards; each control period is simulated with the demand the loop wrote for
+it, so the physics matches lock-step, only later (the loop's feedback sees the
+plant's latest sample). Lock-step: the physics runs in the loop's process,
+exactly and deterministically, one control period per tick.
 """
 
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 import time
 from typing import Any
 
@@ -20,7 +28,15 @@ from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.model.action import ActionModel
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
+from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
 from rig.sim_backend.rig import DriveState, SimRig
+
+CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
+
+
+def row_width(config: RigConfig) -> int:
+    """Columns of a simulated card row: sample, load cell, (strain), one per encoder."""
+    return 2 + int(config.channels.strain_gauge.enabled) + len(config.channels.encoders)
 
 
 class SimDaq(Daq):
@@ -30,19 +46,58 @@ class SimDaq(Daq):
                  drive_state: DriveState | None = None, model: ActionModel | None = None) -> None:
         super().__init__(config)
         self.lockstep = lockstep or not config.sim.realtime
-        self.rig = SimRig(config, drive_state, model)
-        cap = max(4 * self.rig.n_per_cycle,
-                  int(config.acquisition.buffer_s * config.rates.acquisition_hz))
-        self.fifo = SharedFifo(cap, self.rig.width)
+        spc = config.rates.samples_per_cycle
+        cap = max(4 * spc, int(config.acquisition.buffer_s * config.rates.acquisition_hz))
         self.volts = 0.0
-        self.cycles = 0          # control periods simulated so far
+        self.cycles = 0          # control periods simulated so far (lock-step)
         self.index = -1          # last tick handed to the loop
         self.t_start = math.nan
         self._closed = False
         self._armed = False
+        self.rig: SimRig | None = None
+        self.link: PlantLink | None = None
+        self.plant: Any = None
+        self.fifo = SharedFifo(cap, row_width(config))
+        if self.lockstep:
+            self.rig = SimRig(config, drive_state, model)
+            self.drive_state: DriveState | SharedDriveState = self.rig.drive_state
+            return
+        if drive_state is not None or model is not None:
+            self.fifo.close()
+            raise ValueError("drive_state, model: only for the lock-step simulated rig (in real "
+                             "time the plant process builds its own)")
+        try:
+            self.link = PlantLink(max(4, cap // spc))
+            self.drive_state = SharedDriveState(self.link)
+            ctx = mp.get_context("spawn")
+            plant = ctx.Process(target=run_plant, name="rig-sim-plant", daemon=True, args=(
+                config.model_dump(mode="json"), self.link.spec, self.fifo.spec))
+            plant.start()
+            self.plant = plant
+            end = time.monotonic() + config.acquisition.start_timeout_s
+            while not self.link.ready:
+                if self.link.error or not self.plant.is_alive():
+                    raise DaqFault(self._plant_error() or "the simulated rig did not start")
+                if time.monotonic() > end:
+                    raise DaqFault("the simulated rig did not start within "
+                                   f"{config.acquisition.start_timeout_s} s")
+                time.sleep(0.01)
+        except BaseException:
+            self.close()
+            raise
+
+    def _plant_error(self) -> str | None:
+        assert self.link is not None
+        err = self.link.error
+        if err:
+            return err.splitlines()[0]
+        if self.plant is not None and not self.plant.is_alive():
+            return f"the simulated rig's process died (exit code {self.plant.exitcode})"
+        return None
 
     def reader_spec(self) -> dict[str, Any]:
         return {"backend": "sim", "fifo": self.fifo.spec,
+                "plant": self.link.spec if self.link is not None else None,
                 "read_period_s": self.config.acquisition.read_period_s}
 
     def arm(self) -> None:
@@ -52,47 +107,76 @@ class SimDaq(Daq):
         self._armed = True
 
     def _simulate_to(self, cycles: int) -> None:
+        assert self.rig is not None
         while self.cycles < cycles:
             rows = self.rig.cycle(self.volts)
-            self.fifo.write(rows, wait=self.lockstep)
+            self.fifo.write(rows, wait=True)
             self.cycles += 1
 
     def wait_for_tick(self) -> Tick:
         if not self._armed:
             raise RuntimeError("arm() the simulated rig before waiting for ticks")
+        if self._closed:
+            raise RuntimeError("the simulated rig is closed")
         if math.isnan(self.t_start):  # the clock starts with the loop's first wait
             self.t_start = time.perf_counter() + 0.001
+            if self.link is not None:
+                self.link.t_start = self.t_start
         if self.lockstep:
             self._simulate_to(self.index + 1)
             self.index += 1
             return Tick(self.index, 0.0, 0)
+        assert self.link is not None
         target = self.index + 1
         deadline = self.t_start + target * self.dt
         now = pacing.sleep_until(deadline)
         behind = int((now - self.t_start) / self.dt)
         missed = max(0, behind - target)
-        self._simulate_to(target + missed)  # the card held the last output meanwhile
+        for j in range(target, target + missed):  # the card held the last output meanwhile
+            self.link.put(j, self.volts)
         self.index = target + missed
+        if self.index % CHECK_EVERY == 0 or missed:
+            err = self._plant_error()
+            if err:
+                raise DaqFault(err)
         return Tick(self.index, now - (self.t_start + self.index * self.dt), missed)
 
     def write_volts(self, volts: float) -> None:
         if self._closed:
             raise RuntimeError("the simulated rig is closed")
         self.volts = float(volts)
-        self._simulate_to(self.index + 1)
+        if self.lockstep:
+            self._simulate_to(self.index + 1)
+        elif self.index >= 0:
+            assert self.link is not None
+            self.link.put(self.index, self.volts)
 
     def feedback_ratio(self) -> tuple[int, float]:
-        return self.rig.sample - 1, self.rig.last_ratio
+        if self.rig is not None:
+            return self.rig.sample - 1, self.rig.last_ratio
+        assert self.link is not None
+        return self.link.feedback()
 
     @property
     def samples_written(self) -> int:
         return self.fifo.written
 
     def close(self) -> None:
+        """Zero the output, let the plant finish the periods the loop ran, release all."""
         if self._closed:
             return
-        self.volts = 0.0
         self._closed = True
+        self.volts = 0.0
+        if self.link is not None:
+            if self.index >= 0 and self.link.cycles_done <= self.index:
+                self.link.put(self.index, 0.0)
+            self.link.request_stop()
+            if self.plant is not None:
+                self.plant.join(timeout=30.0)
+                if self.plant.is_alive():
+                    self.plant.kill()
+                    self.plant.join(timeout=5.0)
+            self.link.close()
         self.fifo.mark_closed()
         self.fifo.close()
 
@@ -102,6 +186,7 @@ class SimReader(Reader):
 
     def __init__(self, spec: dict[str, Any]) -> None:
         self.fifo = SharedFifo.attach(spec["fifo"])
+        self.link = PlantLink.attach(spec["plant"]) if spec.get("plant") else None
         self.period = float(spec.get("read_period_s", 0.02))
         self.width = self.fifo.width
 
@@ -115,9 +200,13 @@ class SimReader(Reader):
                 rows = self.fifo.read()
             except BufferOverflow as exc:
                 raise DaqFault(f"acquisition buffer overflow: {exc}") from None
+            if not rows.shape[0] and self.link is not None and self.link.error:
+                raise DaqFault(self.link.error.splitlines()[0])
             if rows.shape[0] or time.monotonic() >= end or self.fifo.closed:
                 return rows
             time.sleep(min(0.001, self.period))
 
     def close(self) -> None:
         self.fifo.close()
+        if self.link is not None:
+            self.link.close()

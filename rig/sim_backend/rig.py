@@ -19,6 +19,7 @@ import numpy as np
 from rig.config import RigConfig
 from rig.model.action import ANGLE_CHANNELS, ActionModel
 from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.plant import SharedDriveState
 from rig.sim_backend.sensors import SensorSet
 
 
@@ -38,7 +39,8 @@ class DriveState:
 class SimRig:
     """The simulated action, drive and sensors (one writer of the simulated card buffer)."""
 
-    def __init__(self, config: RigConfig, drive_state: DriveState | None = None,
+    def __init__(self, config: RigConfig,
+                 drive_state: DriveState | SharedDriveState | None = None,
                  model: ActionModel | None = None) -> None:
         self.config = config
         rate = config.rates.acquisition_hz
@@ -55,7 +57,7 @@ class SimRig:
         if self.strain_on and "flexible_shank" not in self.model.effect_names:
             raise ValueError("sim.effects: the strain gauge needs the flexible_shank effect "
                              "(or set channels.strain_gauge.enabled: false)")
-        self.drive_state = drive_state or DriveState(enabled=True)
+        self.drive_state: DriveState | SharedDriveState = drive_state or DriveState(enabled=True)
         self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
                                 config.sim.process_time_unit_s, self.model.params)
         self.sensors = SensorSet.from_config(config)

@@ -1,0 +1,209 @@
+"""The simulated rig's physics in its own OS process (real-time mode).
+
+In real time the torque loop must not wait for the action model: near impact
+one 2 ms step of the flexible-shank model costs up to ~3 ms. As on the real
+rig, where the cards' clock and buffers decouple the loop from the plant, the
+loop only paces and writes its demand; the plant process integrates the
+drive, the action and the sensors alongside and writes the card rows into the
+simulated input buffer (``SharedFifo``), which the acquisition process drains.
+
+They share one block of memory, ``PlantLink``:
+
+* the analog output, as a ring of (tick, volts) slots: the loop writes the
+  demand of tick i into slot i (a missed tick gets the held output when the
+  loop wakes, as the card held it); the plant simulates control period i
+  with slot i's volts as soon as it is there, so the physics is the same as
+  in lock-step whatever the scheduling, only later;
+* the latest load-cell sample (for the loop's controller hook);
+* the simulated drive's state (enabled, fault), written by the simulated
+  serial drive in the loop's process and read by the plant;
+* the clock's start, a stop request, and the plant's error message.
+
+The plant never runs ahead of the loop (it waits for each tick's demand); if
+it falls more than the ring behind (``acquisition.buffer_s``) it stops with
+an error, which the loop and the acquisition report as a card fault.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import threading
+import time
+import traceback
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+
+_T_START, _STOP, _ERROR, _LAST_SAMPLE, _LAST_RATIO, _ENABLED, _FAULT, _DONE, _READY = range(9)
+_HEADER = 16
+_MSG_BYTES = 1024
+POLL_S = 0.0002
+
+
+class PlantLink:
+    """Shared memory between the loop (owner) and the plant process (attached)."""
+
+    def __init__(self, slots: int, name: str | None = None) -> None:
+        if slots < 2:
+            raise ValueError(f"slots: expected at least 2, got {slots}")
+        self.slots = slots
+        self.owner = name is None
+        size = 8 * (_HEADER + 2 * slots) + _MSG_BYTES
+        self.shm = shared_memory.SharedMemory(name=name, create=self.owner, size=size)
+        self.h = np.ndarray((_HEADER,), np.float64, self.shm.buf, 0)
+        self.tags = np.ndarray((slots,), np.float64, self.shm.buf, 8 * _HEADER)
+        self.volts = np.ndarray((slots,), np.float64, self.shm.buf, 8 * (_HEADER + slots))
+        self.msg = np.ndarray((_MSG_BYTES,), np.uint8, self.shm.buf, 8 * (_HEADER + 2 * slots))
+        if self.owner:
+            self.h[:] = 0.0
+            self.h[_T_START] = math.nan
+            self.tags[:] = -1.0
+            self.volts[:] = 0.0
+
+    @property
+    def spec(self) -> tuple[str, int]:
+        return self.shm.name, self.slots
+
+    @classmethod
+    def attach(cls, spec: tuple[str, int]) -> PlantLink:
+        return cls(spec[1], spec[0])
+
+    # -- analog output (loop writes, plant reads) -------------------------------------
+    def put(self, tick: int, volts: float) -> None:
+        """The demand of control period ``tick`` (volts first, then the tag publishes it)."""
+        j = tick % self.slots
+        self.volts[j] = volts
+        self.tags[j] = float(tick)
+
+    def get(self, tick: int) -> float | None:
+        """Slot ``tick``'s volts, None while not yet written; RuntimeError if overwritten."""
+        j = tick % self.slots
+        tag = self.tags[j]
+        if tag == tick:
+            return float(self.volts[j])
+        if tag > tick:
+            raise RuntimeError(f"the simulated rig fell more than {self.slots} control periods "
+                               f"behind the loop (acquisition.buffer_s)")
+        return None
+
+    # -- header fields -----------------------------------------------------------------
+    @property
+    def t_start(self) -> float:
+        return float(self.h[_T_START])
+
+    @t_start.setter
+    def t_start(self, value: float) -> None:
+        self.h[_T_START] = value
+
+    def request_stop(self) -> None:
+        self.h[_STOP] = 1.0
+
+    @property
+    def stop_requested(self) -> bool:
+        return bool(self.h[_STOP])
+
+    def publish(self, sample: int, ratio: float, cycles: int) -> None:
+        self.h[_LAST_RATIO] = ratio
+        self.h[_LAST_SAMPLE] = sample
+        self.h[_DONE] = cycles
+
+    def feedback(self) -> tuple[int, float]:
+        return int(self.h[_LAST_SAMPLE]), float(self.h[_LAST_RATIO])
+
+    @property
+    def cycles_done(self) -> int:
+        return int(self.h[_DONE])
+
+    @property
+    def ready(self) -> bool:
+        return bool(self.h[_READY])
+
+    def set_ready(self) -> None:
+        self.h[_READY] = 1.0
+
+    def fail(self, message: str) -> None:
+        data = message.encode("utf-8", "replace")[: _MSG_BYTES - 1]
+        self.msg[:] = 0
+        self.msg[: len(data)] = np.frombuffer(data, np.uint8)
+        self.h[_ERROR] = 1.0
+
+    @property
+    def error(self) -> str | None:
+        if not self.h[_ERROR]:
+            return None
+        return bytes(self.msg).split(b"\0", 1)[0].decode("utf-8", "replace")
+
+    def close(self) -> None:
+        del self.h, self.tags, self.volts, self.msg
+        self.shm.close()
+        if self.owner:
+            self.shm.unlink()
+
+
+class SharedDriveState:
+    """``DriveState`` over the shared block: the simulated serial drive (loop's process)
+    sets it, the plant process reads it (``pushing``)."""
+
+    def __init__(self, link: PlantLink) -> None:
+        self._h = link.h
+        self.lock = threading.Lock()
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self._h[_ENABLED])
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        self._h[_ENABLED] = 1.0 if value else 0.0
+
+    @property
+    def fault(self) -> int:
+        return int(self._h[_FAULT])
+
+    @fault.setter
+    def fault(self, value: int) -> None:
+        self._h[_FAULT] = float(value)
+
+    @property
+    def pushing(self) -> bool:
+        return self.enabled and self.fault == 0
+
+
+def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
+              fifo_spec: tuple[str, int, int]) -> None:
+    """Entry point of the plant process: simulate each control period once its demand is in."""
+    from rig.config import from_mapping
+    from rig.sim_backend.fifo import SharedFifo
+    from rig.sim_backend.rig import SimRig
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run's process decides on Ctrl-C
+    link = PlantLink.attach(link_spec)
+    fifo = SharedFifo.attach(fifo_spec)
+    try:
+        cfg = from_mapping(cfg_data)
+        state = SharedDriveState(link)
+        state.enabled = True  # as the lock-step rig's DriveState: the serial drive decides
+        rig = SimRig(cfg, state)
+        if rig.width != fifo.width:
+            raise RuntimeError(f"card rows of {rig.width} columns for a buffer of {fifo.width}")
+        link.set_ready()
+        cycle = 0
+        while True:
+            volts = link.get(cycle)
+            if volts is None:
+                if link.stop_requested:
+                    break
+                time.sleep(POLL_S)
+                continue
+            rows = rig.cycle(volts)
+            fifo.write(rows)  # the card never waits: a slow reader overflows, loudly
+            cycle += 1
+            link.publish(rig.sample - 1, rig.last_ratio, cycle)
+    except Exception as exc:  # the loop and the acquisition report it as a card fault
+        link.fail(f"the simulated rig failed: {type(exc).__name__}: {exc}\n"
+                  + traceback.format_exc(limit=4))
+    finally:
+        fifo.close()
+        link.close()
