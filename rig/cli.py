@@ -451,7 +451,7 @@ def diagnose_cmd(
     console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)
     if write is not None and diag.best is None:
         err.print(f"no candidate explains the residual significantly; {write} was not written",
-                  markup=False, highlight=False)
+                  markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1)
     if write is not None:
         console.print(f"wrote {write}", markup=False, highlight=False)

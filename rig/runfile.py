@@ -286,6 +286,8 @@ def write_result(path: str | Path, result: Any, kind: str = "simulated",
     meta = dict(metadata or {})
     model = dict(result.metadata.get("model", {}))
     params_yaml = model.pop("parameters_yaml", None)
+    if params_yaml is None and getattr(result, "model", None) is not None:
+        params_yaml = result.model.parameters_yaml
     meta.setdefault("model", model)
     if params_yaml is not None:
         meta.setdefault("parameters", params_yaml)

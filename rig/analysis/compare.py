@@ -1,0 +1,353 @@
+"""Models against a measured trial: aligned residuals, errors per channel, phase and event.
+
+Each model is simulated at the trial's sample rate from t = 0 (the profile's
+start) under the trial's input, so its samples fall on the measurement's.
+Channels compared: every calibrated channel the trial holds (the force too
+unless it is the input); a channel a model does not produce (e.g. shank strain
+of a rigid shank) is predicted as zero. Errors: RMS, RMS normalized by the
+measured channel's range, maximum; the same per phase of the blow (phases
+bounded by the measured events); and the events piano makers care about.
+
+Measured events come from the run file when it has them (simulated runs);
+otherwise each is located by the local time shift that best aligns the first
+model's channel with the measurement in a window around that model's event
+(strike, let-off, check on the hammer angle; key start, key bottom on the
+key dip), which is how a timing error shows in encoder data.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig.analysis import measurement as ms
+from rig.analysis.measurement import Measurement
+from rig.model.action import EVENT_ORDER, ActionModel, SimResult
+
+PHASES: tuple[tuple[str, str | None, str | None], ...] = (
+    ("rest", None, "key_starts"),
+    ("key descent", "key_starts", "let_off"),
+    ("let-off to strike", "let_off", "strike"),
+    ("string contact", "strike", "string_release"),
+    ("flight back to the check", "string_release", "backcheck_catch"),
+    ("check", "backcheck_catch", "key_release"),
+    ("release", "key_release", None),
+)
+PHASE_NAMES = tuple(p[0] for p in PHASES)
+EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
+    "key_starts": ("key_dip", "key_angle", "whippen_angle"),
+    "let_off": ("hammer_angle", "whippen_angle"),
+    "escapement": ("hammer_angle", "whippen_angle"),
+    "strike": ("hammer_angle", "shank_strain"),
+    "string_release": ("hammer_angle", "shank_strain"),
+    "backcheck_catch": ("hammer_angle",),
+    "key_bottom": ("key_dip", "key_angle"),
+    "key_release": ("key_dip", "key_angle"),
+}
+# the event errors that matter to piano makers (name, event or None, units)
+KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
+    ("strike time", "strike", "ms"),
+    ("hammer speed at strike", "", "m/s"),
+    ("let-off time", "let_off", "ms"),
+    ("check time", "backcheck_catch", "ms"),
+    ("key-bottom time", "key_bottom", "ms"),
+)
+
+
+@dataclass
+class ChannelError:
+    rms: float
+    nrms: float   # RMS / range of the measured channel
+    max: float
+    units: str
+    modelled: bool = True
+
+
+@dataclass
+class ModelComparison:
+    """One model against the trial."""
+
+    label: str
+    result: SimResult
+    predicted: dict[str, np.ndarray]
+    residual: dict[str, np.ndarray]
+    errors: dict[str, ChannelError]
+    phase_errors: dict[str, dict[str, float]]   # channel -> phase -> normalized RMS
+    events: dict[str, float]
+    event_errors: dict[str, float]              # KEY_EVENTS name -> model - measured
+    strike_speed: float = math.nan
+
+    @property
+    def ok(self) -> bool:
+        return self.result.success
+
+    def mean_nrms(self, channels: Sequence[str] | None = None) -> float:
+        names = list(channels) if channels is not None else list(self.errors)
+        vals = [self.errors[c].nrms for c in names if c in self.errors]
+        return float(np.sqrt(np.mean(np.square(vals)))) if vals else math.nan
+
+
+@dataclass
+class Comparison:
+    """Several models against one trial."""
+
+    measurement: Measurement
+    input: str
+    time: np.ndarray
+    channels: list[str]
+    measured: dict[str, np.ndarray]
+    ranges: dict[str, float]
+    noise: dict[str, float]
+    events: dict[str, float]
+    event_source: dict[str, str]
+    strike_speed: float
+    phases: list[tuple[str, float, float]]
+    models: list[ModelComparison] = field(default_factory=list)
+
+    def phase_mask(self, name: str) -> np.ndarray:
+        for p, a, b in self.phases:
+            if p == name:
+                return (self.time >= a) & (self.time < b)
+        return np.zeros(self.time.shape, bool)
+
+
+def _rest_value(time: np.ndarray, x: np.ndarray, rest: np.ndarray) -> float:
+    return float(np.mean(x[rest])) if rest.any() else float(x[0])
+
+
+def prepare(meas: Measurement, input: str = "force", duration: float | None = None,
+            channels: Sequence[str] | None = None) -> tuple[np.ndarray, list[str],
+                                                             dict[str, np.ndarray]]:
+    """The comparison window, the channels compared and the measured signals (rest removed)."""
+    dur = meas.duration if duration is None else min(float(duration), meas.duration)
+    window = (meas.time >= 0) & (meas.time <= dur + 1e-9)
+    avail = meas.signal_channels()
+    if channels is None:
+        names = [c for c in avail if not (c == "force" and input == "force")]
+    else:
+        names = list(channels)
+        for c in names:
+            if c not in avail:
+                raise ValueError(f"channels: {c!r} is not a calibrated channel of "
+                                 f"{meas.label} (it has {avail})")
+    if not names:
+        raise ValueError(f"channels: {meas.label} has no channel to compare besides the input")
+    rest = meas.rest_mask()
+    measured = {}
+    for c in names:
+        x = meas.channels[c]
+        off = _rest_value(meas.time, x, rest) if meas.relative(c) else 0.0
+        measured[c] = x[window] - off
+    return meas.time[window], names, measured
+
+
+def predicted_channels(result: SimResult, time: np.ndarray, names: Sequence[str],
+                       relative: dict[str, bool]) -> dict[str, np.ndarray]:
+    """A simulation's channels on the measurement's samples (NaN past its end; zero if absent)."""
+    out = {}
+    rt = result.time
+    for c in names:
+        if c not in result.channels:
+            out[c] = np.zeros(time.shape)
+            continue
+        x = np.asarray(result.channels[c], float)
+        if x.size == 0:
+            out[c] = np.full(time.shape, math.nan)
+            continue
+        rest = rt < min(ms.REST_S, rt[0] + ms.REST_S)
+        off = _rest_value(rt, x, rest) if relative[c] else 0.0
+        y = np.interp(time, rt, x) - off
+        if rt.size > 1:
+            y[time > rt[-1] + 0.5 * float(rt[1] - rt[0])] = math.nan
+        out[c] = y
+    return out
+
+
+def local_shift(time: np.ndarray, measured: np.ndarray, model: np.ndarray, t_event: float,
+                half_window: float = 0.004, max_shift: float = 0.006,
+                step: float = 2e-5) -> float:
+    """Time shift tau (s) for which model(t - tau) best matches the measurement near t_event."""
+    if not math.isfinite(t_event):
+        return math.nan
+    win = (time >= t_event - half_window) & (time <= t_event + half_window)
+    ok = win & np.isfinite(model)
+    if ok.sum() < 5:
+        return math.nan
+    tw, mw = time[ok], measured[ok]
+    good = np.isfinite(model)
+    taus = np.arange(-max_shift, max_shift + step / 2, step)
+    sse = np.array([np.sum((np.interp(tw - tau, time[good], model[good]) - mw) ** 2)
+                    for tau in taus])
+    i = int(np.argmin(sse))
+    if i in (0, taus.size - 1):
+        return math.nan
+    a, b, c = sse[i - 1], sse[i], sse[i + 1]
+    den = a - 2 * b + c
+    frac = 0.5 * (a - c) / den if den > 0 else 0.0
+    return float(taus[i] + frac * step)
+
+
+def _slope(time: np.ndarray, x: np.ndarray, t0: float, t1: float) -> float:
+    sel = (time >= t0) & (time <= t1) & np.isfinite(x)
+    if sel.sum() < 3:
+        return math.nan
+    return float(np.polyfit(time[sel], x[sel], 1)[0])
+
+
+def head_speed(result: SimResult) -> float:
+    """Hammer-head speed (m/s) at the last sample before the strike: in free flight it is
+    the strike speed within gravity's 5 mm/s per ms, while interpolating across the impact
+    (as ``SimResult.strike_speed`` does) mixes in the rebound at low output rates."""
+    ts = result.events.get("strike", math.nan)
+    if not math.isfinite(ts) or "hammer_head_velocity" not in result.channels:
+        return math.nan
+    i = int(np.searchsorted(result.time, ts, side="right")) - 1
+    return float(result.channels["hammer_head_velocity"][i]) if i >= 0 else math.nan
+
+
+def _strike_speed(time: np.ndarray, angle: np.ndarray, t_strike: float) -> float:
+    """Hammer angular speed (rad/s) over the 2 ms before the strike."""
+    return _slope(time, angle, t_strike - 0.002, t_strike - 0.00025)
+
+
+def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.ndarray],
+                    ref: SimResult, ref_pred: dict[str, np.ndarray]
+                    ) -> tuple[dict[str, float], dict[str, str]]:
+    """Event times of the trial: from the file, else the local shift against the reference."""
+    ev: dict[str, float] = {}
+    src: dict[str, str] = {}
+    for name in EVENT_ORDER:
+        if name in meas.events:
+            ev[name], src[name] = meas.events[name], "run file"
+            continue
+        t_model = ref.events.get(name, math.nan)
+        ev[name], src[name] = math.nan, "not found"
+        for c in EVENT_CHANNELS.get(name, ()):
+            if c in measured and c in ref_pred:
+                tau = local_shift(time, measured[c], ref_pred[c], t_model)
+                if math.isfinite(tau):
+                    ev[name], src[name] = t_model + tau, f"aligned on {c}"
+                    break
+    return ev, src
+
+
+def phases_from(events: dict[str, float], t_end: float) -> list[tuple[str, float, float]]:
+    """Phase windows [start, end) bounded by the events; phases whose events are missing
+    run to the next event that happened."""
+    bounds = []
+    for name, a, b in PHASES:
+        ta = 0.0 if a is None else events.get(a, math.nan)
+        bounds.append((name, ta, b))
+    out = []
+    for i, (name, ta, _) in enumerate(bounds):
+        if not math.isfinite(ta):
+            continue
+        tb = t_end
+        for later in bounds[i + 1:]:
+            if math.isfinite(later[1]) and later[1] > ta:
+                tb = later[1]
+                break
+        tb = min(tb, t_end)
+        if tb > ta:
+            out.append((name, ta, tb))
+    return out
+
+
+def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input: str = "force",
+            duration: float | None = None, channels: Sequence[str] | None = None,
+            results: Sequence[SimResult] | None = None) -> Comparison:
+    """Simulate each (label, model) under the trial's input and compare it with the trial."""
+    if not models:
+        raise ValueError("models: expected at least one model")
+    time, names, measured = prepare(meas, input, duration, channels)
+    rel = {c: meas.relative(c) for c in names}
+    sims = list(results) if results is not None else [
+        ms.simulate(m, meas, input, duration) for _, m in models]
+    preds = [predicted_channels(r, time, names, rel) for r in sims]
+    ref_i = next((i for i, r in enumerate(sims) if r.success), 0)
+    events, src = measured_events(meas, time, measured, sims[ref_i], preds[ref_i])
+    t_end = float(time[-1]) + 1.0 / meas.rate
+    phases = phases_from(events, t_end)
+    ranges = {c: float(np.ptp(measured[c])) or 1.0 for c in names}
+    noise = {c: ms.noise_sigma(measured[c]) for c in names}
+    # measured hammer speed: the reference model's head speed scaled by the ratio of the
+    # hammer's angular speeds before the strike (the head's lever is the model's geometry)
+    ref = sims[ref_i]
+    speed = math.nan
+    if "hammer_angle" in measured and math.isfinite(events.get("strike", math.nan)) \
+            and math.isfinite(head_speed(ref)):
+        w_meas = _strike_speed(time, measured["hammer_angle"], events["strike"])
+        rt = ref.time
+        w_ref = _strike_speed(rt, ref.channels["hammer_angle"], ref.events["strike"])
+        if w_ref:
+            speed = head_speed(ref) * w_meas / w_ref
+    if "strike" in meas.events and "hammer_head_velocity" in meas.channels:
+        i = int(np.searchsorted(meas.time, meas.events["strike"], side="right")) - 1
+        speed = float(meas.channels["hammer_head_velocity"][max(i, 0)])
+    comp = Comparison(meas, input, time, names, measured, ranges, noise, events, src, speed,
+                      phases)
+    for (label, _), res, pred in zip(models, sims, preds, strict=True):
+        comp.models.append(_score(comp, label, res, pred))
+    return comp
+
+
+def _score(comp: Comparison, label: str, res: SimResult,
+           pred: dict[str, np.ndarray]) -> ModelComparison:
+    resid = {c: pred[c] - comp.measured[c] for c in comp.channels}
+    errors = {}
+    for c in comp.channels:
+        r = resid[c][np.isfinite(resid[c])]
+        rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
+        errors[c] = ChannelError(rms, rms / comp.ranges[c],
+                                 float(np.max(np.abs(r))) if r.size else math.nan,
+                                 comp.measurement.units.get(c, ""), c in res.channels)
+    perphase: dict[str, dict[str, float]] = {}
+    for c in comp.channels:
+        perphase[c] = {}
+        for p, a, b in comp.phases:
+            sel = (comp.time >= a) & (comp.time < b) & np.isfinite(resid[c])
+            perphase[c][p] = float(np.sqrt(np.mean(resid[c][sel] ** 2)) / comp.ranges[c]) \
+                if sel.any() else math.nan
+    ev = dict(res.events)
+    ee: dict[str, float] = {}
+    for name, event, units in KEY_EVENTS:
+        if not event:
+            ee[name] = head_speed(res) - comp.strike_speed
+        else:
+            ee[name] = (ev.get(event, math.nan) - comp.events.get(event, math.nan)) * 1e3 \
+                if units == "ms" else math.nan
+    return ModelComparison(label, res, pred, resid, errors, perphase, ev, ee, head_speed(res))
+
+
+def table(comp: Comparison) -> str:
+    """A plain-text table: models side by side, per channel and per key event."""
+    labels = [m.label for m in comp.models]
+    w = max(12, *(len(x) + 2 for x in labels))
+    lines = [f"{comp.measurement.label}: input {comp.input}, {comp.time[-1] * 1e3:.0f} ms "
+             f"at {comp.measurement.rate:g} Hz"]
+    head = f"{'channel':<26}{'':>8}" + "".join(f"{x:>{w}}" for x in labels)
+    lines += [head, "-" * len(head)]
+    for c in comp.channels:
+        units = comp.measurement.units.get(c, "")
+        for kind, key in (("RMS", "rms"), ("norm.", "nrms"), ("max", "max")):
+            vals = []
+            for m in comp.models:
+                e = m.errors[c]
+                v = getattr(e, key)
+                vals.append(f"{v * 100:.2f} %" if key == "nrms" else f"{v:.3g}")
+            name = f"{c} [{units}]" if kind == "RMS" else ""
+            lines.append(f"{name:<26}{kind:>8}" + "".join(f"{v:>{w}}" for v in vals))
+    lines.append(f"{'all channels':<26}{'norm.':>8}" + "".join(
+        f"{m.mean_nrms() * 100:>{w - 2}.2f} %" for m in comp.models))
+    lines.append("-" * len(head))
+    for name, event, units in KEY_EVENTS:
+        meas_v = comp.strike_speed if not event else comp.events.get(event, math.nan) * 1e3
+        vals = [f"{m.event_errors[name]:+.3g}" for m in comp.models]
+        lines.append(f"{name + ' err [' + units + ']':<26}{'':>8}" + "".join(
+            f"{v:>{w}}" for v in vals) + f"   (measured {meas_v:.4g})")
+    fails = [f"{m.label}: simulation failed ({m.result.message})" for m in comp.models
+             if not m.ok]
+    return "\n".join(lines + fails)

@@ -1,0 +1,403 @@
+"""Least-squares fits of model and effect parameters to one or many trials.
+
+A target is a model parameter (a dotted path such as ``contacts.4.D``) or an
+effect's parameter (``effect_name.param``), optionally with bounds
+(``NAME=LO:HI``). The residual is every compared channel's (model - measured)
+divided by the measured channel's range, on the chosen samples of every
+trial, so each channel weighs the same. Parameters spanning decades are fitted
+in log space. Finite-difference Jacobians evaluate their columns in parallel
+(one process per core, forked so user effects loaded from files come along).
+
+Uncertainty: the Gauss-Newton covariance ``s^2 (J^T J)^-1`` at the solution,
+inflated by ``(1 + rho) / (1 - rho)`` where ``rho`` is the residual's lag-one
+autocorrelation (neighbouring samples are not independent).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rig.analysis import compare as cp
+from rig.analysis import measurement as ms
+from rig.analysis.measurement import Measurement
+from rig.model.action import ActionModel
+from rig.model.effects import Effect
+
+FAILED_PENALTY = 1.0
+ALIGN_S = 0.0  # residual (in channel ranges) of samples a failed simulation lacks
+
+
+@dataclass
+class Target:
+    """One fitted quantity."""
+
+    label: str
+    effect: str | None      # effect name, or None for a model parameter
+    key: str                # effect parameter name or parameter path
+    value: float            # starting value
+    lo: float
+    hi: float
+    units: str = ""
+
+    @property
+    def log(self) -> bool:
+        return self.lo > 0 and self.hi / self.lo >= 20 and self.value >= 3 * self.lo
+
+    def to_u(self, v: float) -> float:
+        return math.log(v / self.value) if self.log else (v - self.value) / self.scale
+
+    def from_u(self, u: float) -> float:
+        v = self.value * math.exp(u) if self.log else self.value + u * self.scale
+        return min(max(v, self.lo), self.hi)
+
+    def dv_du(self, v: float) -> float:
+        return v if self.log else self.scale
+
+    @property
+    def scale(self) -> float:
+        return 0.1 * (self.hi - self.lo)
+
+    @property
+    def u_bounds(self) -> tuple[float, float]:
+        return self.to_u(self.lo), self.to_u(self.hi)
+
+
+def _parse_bounds(text: str, name: str) -> tuple[float, float]:
+    try:
+        lo_s, hi_s = text.split(":")
+        lo, hi = float(lo_s), float(hi_s)
+    except ValueError:
+        raise ValueError(f"param: {name}: expected NAME=LO:HI bounds, got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"param: {name}: expected finite bounds LO < HI, got {text!r}")
+    return lo, hi
+
+
+def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Target:
+    """A fit target from ``NAME`` or ``NAME=LO:HI`` for this model (and extra effects)."""
+    name, _, bounds = spec.partition("=")
+    name = name.strip()
+    effects = {e.name: e for e in (*model.effects, *extra)}
+    head, _, rest = name.partition(".")
+    if head in effects and rest:
+        eff = effects[head]
+        specs = {p.name: p for p in eff.parameters}
+        if rest not in specs:
+            raise ValueError(f"param: {name}: effect {head} has no parameter {rest!r} "
+                             f"(it has {sorted(specs)})")
+        p = specs[rest]
+        lo, hi = _parse_bounds(bounds, name) if bounds else p.bounds
+        lo, hi = max(lo, p.bounds[0]), min(hi, p.bounds[1])
+        v0 = min(max(float(eff.values[rest]), lo), hi)
+        return Target(name, head, rest, v0, lo, hi, p.units)
+    try:
+        v0 = model.params.get(name)
+    except (KeyError, ValueError, TypeError):
+        raise ValueError(f"param: {name}: not a model parameter path (e.g. contacts.4.D) nor "
+                         f"an effect parameter of this model (e.g. "
+                         f"{next(iter(effects), 'flexible_shank')}.<name>)") from None
+    if isinstance(v0, bool) or not isinstance(v0, int | float):
+        raise ValueError(f"param: {name}: expected a numeric parameter, got {v0!r}")
+    v0 = float(v0)
+    if bounds:
+        lo, hi = _parse_bounds(bounds, name)
+    elif v0 > 0:
+        lo, hi = v0 / 20, v0 * 20
+    elif v0 < 0:
+        lo, hi = v0 * 20, v0 / 20
+    else:
+        raise ValueError(f"param: {name} is 0; give bounds as {name}=LO:HI")
+    return Target(name, None, name, min(max(v0, lo), hi), lo, hi)
+
+
+def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
+            values: dict[str, float] | None = None, targets: Sequence[Target] = (),
+            rate: float | None = None) -> ActionModel:
+    """A fresh model: base's parameters and effects, extra effects, target values set."""
+    params = base.params.copy()
+    effects: list[Effect] = []
+    for e in base.effects:
+        effects.append(type(e)(**{k: e.values[k] for k in e.explicit}))
+    for a in add:
+        if isinstance(a, Effect):
+            effects.append(type(a)(**{k: a.values[k] for k in a.explicit}))
+        else:
+            effects.append(a())
+    by_name = {e.name: e for e in effects}
+    for t in targets:
+        v = (values or {}).get(t.label, t.value)
+        if t.effect is None:
+            params.set(t.key, v)
+        else:
+            if t.effect not in by_name:
+                raise ValueError(f"param: {t.label}: effect {t.effect} is not in the model")
+            by_name[t.effect].set(t.key, v)
+    model = ActionModel(params, effects, base.integrator, output_rate=rate or base.output_rate)
+    model.rest_state()  # shared by every model with the same equations
+    return model
+
+
+@dataclass
+class Data:
+    """Prepared trials: compared signals and the samples a fit or a score uses."""
+
+    measurements: list[Measurement]
+    input: str
+    duration: float | None
+    channels: list[list[str]]
+    time: list[np.ndarray]
+    measured: list[dict[str, np.ndarray]]
+    ranges: list[dict[str, float]]
+    noise: list[dict[str, float]]
+    masks: list[np.ndarray]
+    align_s: float = ALIGN_S
+
+    @classmethod
+    def build(cls, measurements: Sequence[Measurement], input: str = "force",
+              duration: float | None = None, channels: Sequence[str] | None = None,
+              masks: Sequence[np.ndarray] | None = None, align_s: float = 0.0) -> Data:
+        times, names, meas, ranges, noise = [], [], [], [], []
+        for m in measurements:
+            t, n, d = cp.prepare(m, input, duration, channels)
+            times.append(t)
+            names.append(n)
+            meas.append(d)
+            ranges.append({c: float(np.ptp(d[c])) or 1.0 for c in n})
+            noise.append({c: ms.noise_sigma(d[c]) for c in n})
+        mk = list(masks) if masks is not None else [np.ones(t.shape, bool) for t in times]
+        return cls(list(measurements), input, duration, names, times, meas, ranges, noise, mk,
+                   align_s)
+
+    def subset(self, masks: Sequence[np.ndarray]) -> Data:
+        return Data(self.measurements, self.input, self.duration, self.channels, self.time,
+                    self.measured, self.ranges, self.noise, list(masks), self.align_s)
+
+    def simulate(self, model: ActionModel) -> list[dict[str, np.ndarray]]:
+        """Each trial's predicted channels (rest removed), NaN where the simulation failed."""
+        out: list[dict[str, np.ndarray]] = []
+        for i, m in enumerate(self.measurements):
+            if not self.masks[i].any():
+                out.append({})
+                continue
+            res = ms.simulate(model, m, self.input, self.duration)
+            rel = {c: m.relative(c) for c in self.channels[i]}
+            out.append(cp.predicted_channels(res, self.time[i], self.channels[i], rel))
+        return out
+
+    def aligned(self, preds: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
+        """Each trial's predictions shifted in time by the one shift (within +-``align_s``)
+        that best matches the masked samples: the input's noise moves a whole blow by a few
+        tenths of a ms from trial to trial, which no model can (or should) explain."""
+        if self.align_s <= 0:
+            return preds
+        out = []
+        for i, pred in enumerate(preds):
+            if not pred or not self.masks[i].any():
+                out.append(pred)
+                continue
+            t = self.time[i]
+            dt = float(t[1] - t[0]) if t.size > 1 else 1.0
+            taus = np.arange(-self.align_s, self.align_s + dt / 20, dt / 10)
+            best, best_tau = math.inf, 0.0
+            for tau in taus:
+                sse = 0.0
+                for c in self.channels[i]:
+                    y = np.interp(t - tau, t, pred[c])
+                    r = (y - self.measured[i][c])[self.masks[i]] / self.ranges[i][c]
+                    sse += float(np.sum(np.where(np.isfinite(r), r, FAILED_PENALTY) ** 2))
+                if sse < best:
+                    best, best_tau = sse, float(tau)
+            out.append({c: np.interp(t - best_tau, t, pred[c]) for c in self.channels[i]})
+        return out
+
+    def residuals(self, preds: list[dict[str, np.ndarray]]) -> np.ndarray:
+        """Normalized residuals (model - measured) / range on the masked samples (aligned)."""
+        parts = []
+        for i, pred in enumerate(self.aligned(preds)):
+            if not self.masks[i].any():
+                continue
+            for c in self.channels[i]:
+                r = (pred[c] - self.measured[i][c])[self.masks[i]] / self.ranges[i][c]
+                parts.append(np.where(np.isfinite(r), r, FAILED_PENALTY))
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def channel_ms(self, preds: list[dict[str, np.ndarray]]) -> dict[str, tuple[float, float]]:
+        """Per channel over the masked samples (aligned): (mean square / range^2,
+        mean square / noise^2)."""
+        acc: dict[str, list[float]] = {}
+        for i, pred in enumerate(self.aligned(preds)):
+            if not self.masks[i].any():
+                continue
+            for c in self.channels[i]:
+                r = (pred[c] - self.measured[i][c])[self.masks[i]]
+                r = np.where(np.isfinite(r), r, FAILED_PENALTY * self.ranges[i][c])
+                a = acc.setdefault(c, [0.0, 0.0, 0.0])
+                a[0] += float(np.sum(r ** 2)) / self.ranges[i][c] ** 2
+                sig = self.noise[i][c]
+                a[1] += float(np.sum(r ** 2)) / (sig ** 2 if sig > 0 else 1.0)
+                a[2] += r.size
+        return {c: (a[0] / a[2], a[1] / a[2]) for c, a in acc.items() if a[2] > 0}
+
+
+def split_masks(data: Data, block_s: float = 0.002) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Training and held-out samples: alternate trials when there are several, else
+    alternate blocks of ``block_s`` within the one trial."""
+    n = len(data.measurements)
+    if n >= 2:
+        train = [np.full(t.shape, i % 2 == 0) for i, t in enumerate(data.time)]
+        test = [np.full(t.shape, i % 2 == 1) for i, t in enumerate(data.time)]
+        return train, test
+    t = data.time[0]
+    block = np.floor((t - t[0]) / block_s).astype(int) % 2 == 0
+    return [block], [~block]
+
+
+@dataclass
+class FitResult:
+    targets: list[Target]
+    values: dict[str, float]
+    sigma: dict[str, float]
+    cost_start: float             # mean normalized square residual at the start
+    cost: float                   # ... at the solution
+    nfev: int
+    status: int
+    message: str
+    history: list[float] = field(default_factory=list)
+
+    @property
+    def success(self) -> bool:
+        return self.status > 0
+
+
+# -- process pool: forked workers share the problem set up before the fork -------------
+_CTX: dict[str, Any] = {}
+
+
+def _pool_eval(key: str, x: np.ndarray) -> np.ndarray:
+    return _CTX[key](x)
+
+
+def make_pool(jobs: int | None) -> Executor | None:
+    """A forked process pool with ``jobs`` workers (None or 1: run in this process)."""
+    n = jobs if jobs is not None else (os.cpu_count() or 1)
+    if n <= 1:
+        return None
+    return ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork"))
+
+
+def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
+        add: Sequence[Effect | type[Effect]] = (), *, jobs: int | None = None,
+        max_nfev: int = 40, diff_step: float = 0.02, scan: int = 0,
+        progress: Callable[[float, float, str], None] | None = None) -> FitResult:
+    """Fit the targets by least squares on ``data``'s masked samples (within bounds)."""
+    extra = [a if isinstance(a, Effect) else a() for a in add]
+    targets = [s if isinstance(s, Target) else target(base, s, extra) for s in specs]
+    if not targets:
+        raise ValueError("param: expected at least one parameter to fit")
+    labels = [t.label for t in targets]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"param: each parameter may appear once, got {labels}")
+    rate = data.measurements[0].rate
+
+    def values_of(u: np.ndarray) -> dict[str, float]:
+        return {t.label: t.from_u(float(x)) for t, x in zip(targets, u, strict=True)}
+
+    last: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def fun(u: np.ndarray) -> np.ndarray:
+        if last and np.array_equal(last[0][0], u):
+            return last[0][1]
+        model = rebuild(base, add, values_of(u), targets, rate)
+        r = data.residuals(data.simulate(model))
+        last[:] = [(u.copy(), r)]
+        return r
+
+    key = f"fit-{id(fun)}"
+    _CTX[key] = fun
+    pool = make_pool(jobs) if (jobs is None or jobs > 1) and len(targets) > 1 else None
+    history: list[float] = []
+    calls = [0]
+    budget = max_nfev * (len(targets) + 1)
+
+    def tick(r: np.ndarray, n: int = 1) -> None:
+        calls[0] += n
+        history.append(float(np.mean(r ** 2)))
+        if progress is not None:
+            progress(min(calls[0], budget), budget, f"cost {history[-1]:.3g}")
+
+    def fun_logged(u: np.ndarray) -> np.ndarray:
+        r = fun(u)
+        tick(r)
+        return r
+
+    def jac(u: np.ndarray) -> np.ndarray:
+        r0 = fun(u)
+        lo, hi = zip(*(t.u_bounds for t in targets), strict=True)
+        pts = []
+        for j in range(len(targets)):
+            h = diff_step * max(1.0, abs(u[j]))
+            up = u.copy()
+            up[j] = u[j] + h if u[j] + h <= hi[j] else u[j] - h
+            pts.append(up)
+        if pool is not None:
+            cols = list(pool.map(_pool_eval, [key] * len(pts), pts))
+        else:
+            cols = [fun(p) for p in pts]
+        tick(r0, len(pts) + 1)
+        return np.column_stack([(c - r0) / (p[j] - u[j])
+                                for j, (c, p) in enumerate(zip(cols, pts, strict=True))])
+
+    try:
+        u0 = np.zeros(len(targets))
+        lo, hi = (np.array(b) for b in zip(*(t.u_bounds for t in targets), strict=True))
+        r0 = fun_logged(u0)
+        if scan > 0:  # coarse one-at-a-time scan across the bounds for a good start
+            best = float(np.mean(r0 ** 2))
+            for j in range(len(targets)):
+                for q in (np.arange(scan) + 0.5) / scan:
+                    u = u0.copy()
+                    u[j] = lo[j] + q * (hi[j] - lo[j])
+                    c = float(np.mean(fun_logged(u) ** 2))
+                    if c < best:
+                        best, u0 = c, u
+        sol = least_squares(fun_logged, u0, jac=jac, bounds=(lo, hi), x_scale=1.0,
+                            max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
+    finally:
+        _CTX.pop(key, None)
+        if pool is not None:
+            pool.shutdown()
+    values = values_of(sol.x)
+    sigma = _uncertainty(targets, values, sol.fun, sol.jac)
+    return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
+                     float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
+                     str(sol.message), history)
+
+
+def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndarray,
+                 J: np.ndarray) -> dict[str, float]:
+    n, p = J.shape
+    out = dict.fromkeys(values, math.nan)
+    if n <= p:
+        return out
+    rho = 0.0
+    if r.size > 2 and np.std(r) > 0:
+        rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.99))
+    s2 = float(r @ r) / (n - p) * (1 + rho) / (1 - rho)
+    try:
+        cov = s2 * np.linalg.pinv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return out
+    for i, t in enumerate(targets):
+        v = values[t.label]
+        out[t.label] = abs(t.dv_du(v)) * math.sqrt(max(cov[i, i], 0.0))
+    return out
+

@@ -1,0 +1,217 @@
+"""A measured (or synthetic) trial as the analysis sees it, and what drives a model with it.
+
+Measured runs start their clock at the profile's start (t = 0); samples before
+it are the settled action at rest. Encoder channels (angles in rad, travels in
+m) are incremental, so they are compared as motion from the rest pose: the mean
+of the rest samples is removed from measurement and model alike. Force and
+strain are absolute.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig import profiles, runfile
+from rig.model.action import ActionModel, SimResult
+
+INPUTS = ("force", "command", "motion")
+RAW_UNITS = {"V/V", "V", "counts", "1", ""}
+RELATIVE_UNITS = {"rad", "m"}
+REST_S = 0.01
+SMOOTH_HZ = 250.0
+
+
+@dataclass
+class Measurement:
+    """One trial's channels (SI) on one time base, with its events and commands if any."""
+
+    time: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    events: dict[str, float] = field(default_factory=dict)
+    commands: dict[str, np.ndarray] = field(default_factory=dict)
+    label: str = "measurement"
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rate(self) -> float:
+        """Sample rate (Hz) of the channels."""
+        rate = float(1.0 / np.median(np.diff(self.time)))
+        return float(round(rate, 6))
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1])
+
+    def signal_channels(self) -> list[str]:
+        """Calibrated 1-D channels (not time, not raw volts or counts)."""
+        return [n for n, v in self.channels.items()
+                if n not in ("time", "sample") and np.ndim(v) == 1
+                and self.units.get(n, "") not in RAW_UNITS]
+
+    def rest_mask(self) -> np.ndarray:
+        """Samples of the action at rest: before t = 0 if there are enough, else t < 10 ms."""
+        before = self.time < 0
+        return before if before.sum() >= 10 else self.time < min(REST_S, self.time[0] + REST_S)
+
+    def relative(self, name: str) -> bool:
+        return self.units.get(name, "") in RELATIVE_UNITS
+
+
+def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurement]:
+    """The trials of a run file as measurements (all of them by default)."""
+    run = runfile.read(path)
+    if not run.trials:
+        raise ValueError(f"{path}: the run file holds no trial")
+    picks = range(len(run.trials)) if trials is None else trials
+    out = []
+    for i in picks:
+        if not 0 <= i < len(run.trials):
+            raise ValueError(f"trials: {i} is not a trial of {path} (it has {len(run.trials)})")
+        tr = run.trials[i]
+        if "time" not in tr.channels or tr.channels["time"].size < 20:
+            raise ValueError(f"{path}: trial {i} has no time channel or too few samples")
+        if "force" not in tr.channels:
+            raise ValueError(f"{path}: trial {i} has no force channel")
+        ev = {k: v for k, v in tr.events.items() if math.isfinite(v)}
+        out.append(Measurement(np.asarray(tr.channels["time"], float),
+                               {k: np.asarray(v, float) for k, v in tr.channels.items()},
+                               dict(tr.units), ev, dict(tr.commands),
+                               label=f"{Path(path).name}#{i}", metadata=dict(run.metadata)))
+    return out
+
+
+def from_result(result: SimResult, label: str = "simulated") -> Measurement:
+    """A simulation's channels as a measurement (e.g. to compare two models)."""
+    ch = {k: v for k, v in result.channels.items() if np.ndim(v) == 1}
+    return Measurement(result.time.copy(), ch, {k: result.units.get(k, "") for k in ch},
+                       {k: v for k, v in result.events.items() if math.isfinite(v)},
+                       label=label)
+
+
+def at_rate(model: ActionModel, rate: float) -> ActionModel:
+    """The same model (parameters, effects, integrator) sampling its channels at ``rate``."""
+    if abs(model.output_rate - rate) <= 1e-9 * rate:
+        return model
+    return ActionModel(model.params, model.effects, model.integrator, output_rate=rate)
+
+
+def smoothed_force(meas: Measurement, smooth_hz: float | None = None) -> np.ndarray:
+    """The measured force through a zero-phase low-pass (2-pole Butterworth run forward and
+    backward): it keeps the force's timing and removes the noise, which would otherwise
+    dither the action's dry friction and start the model early."""
+    f = np.asarray(meas.channels["force"], float)
+    smooth_hz = SMOOTH_HZ if smooth_hz is None else smooth_hz
+    if smooth_hz <= 0 or smooth_hz >= meas.rate / 2 or f.size < 16:
+        return f
+    from scipy import signal
+
+    sos = signal.butter(2, smooth_hz, fs=meas.rate, output="sos")
+    return np.asarray(signal.sosfiltfilt(sos, f))
+
+
+def force_profile(meas: Measurement, duration: float,
+                  smooth_hz: float | None = None) -> profiles.Profile:
+    """The measured force from t = 0 as a profile (smoothed, see ``smoothed_force``); what
+    noise is left passes unclipped (clipping it at zero would bias the force up)."""
+    t, f = meas.time, smoothed_force(meas, smooth_hz)
+    keep = (t >= 0) & (t <= duration + 1.5 / meas.rate)
+    tt, ff = t[keep], f[keep]
+    if tt.size < 2:
+        raise ValueError(f"{meas.label}: fewer than two force samples after t = 0")
+    if tt[0] > 0:
+        tt = np.r_[0.0, tt]
+        ff = np.r_[float(np.interp(0.0, t, f)), ff]
+    return profiles.Profile(tt, ff, "measured force", f"force channel of {meas.label}",
+                            meas.label)
+
+
+def command_profile(meas: Measurement, duration: float) -> profiles.Profile:
+    """The commanded force (the loop's ``demand``, held between ticks) as a profile."""
+    t = meas.commands.get("time")
+    d = meas.commands.get("demand")
+    if t is None or d is None or len(t) < 2:
+        raise ValueError(f"input: {meas.label} has no commands/demand; use input 'force'")
+    keep = t >= 0
+    t, d = np.asarray(t[keep], float), np.clip(np.asarray(d[keep], float), 0.0, None)
+    eps = 1e-6 * float(np.median(np.diff(t)))
+    tt = np.empty(2 * t.size - 1)
+    ff = np.empty_like(tt)
+    tt[0::2], ff[0::2] = t, d
+    tt[1::2], ff[1::2] = t[1:] - eps, d[:-1]
+    if tt[0] > 0:
+        tt, ff = np.r_[0.0, tt], np.r_[0.0, ff]
+    return profiles.Profile(tt, ff, "commanded force", f"demand of {meas.label}", meas.label)
+
+
+def simulate(model: ActionModel, meas: Measurement, input: str = "force",
+             duration: float | None = None) -> SimResult:
+    """Simulate ``model`` (at the measurement's rate) driven by the trial.
+
+    ``force``: the measured key force; ``command``: the loop's demand;
+    ``motion``: the measured key dip, followed by a stiff PD force on the key
+    (feed-forward: the measured force), so the model's force is an output.
+    """
+    if input not in INPUTS:
+        raise ValueError(f"input: expected one of {INPUTS}, got {input!r}")
+    dur = meas.duration if duration is None else min(float(duration), meas.duration)
+    if not dur > 0:
+        raise ValueError(f"duration: expected a positive time in s, got {duration}")
+    m = at_rate(model, meas.rate)
+    if input == "motion":
+        return _simulate_motion(m, meas, dur)
+    prof = force_profile(meas, dur) if input == "force" else command_profile(meas, dur)
+    return m.simulate(prof, dur)
+
+
+def _simulate_motion(model: ActionModel, meas: Measurement, duration: float,
+                     bandwidth_hz: float = 150.0, mass_kg: float = 0.05) -> SimResult:
+    if "key_dip" not in meas.channels:
+        raise ValueError(f"input: motion needs a key_dip channel in {meas.label}")
+    rest = meas.rest_mask()
+    dip = meas.channels["key_dip"] - float(np.mean(meas.channels["key_dip"][rest]))
+    w = 2 * math.pi * bandwidth_hz
+    kp, kd = mass_kg * w * w, 2 * 0.8 * mass_kg * w
+    step = model.stepper()
+    dt = 1.0 / meas.rate
+    n = int(math.floor(duration * meas.rate + 1e-9))
+    f_prev = 0.0
+    e_prev = 0.0
+    ff = np.clip(meas.channels["force"], 0.0, None)
+    for i in range(1, n + 1):
+        t1 = i * dt
+        target = float(np.interp(t1, meas.time, dip))
+        ch = model.channels(np.array([step.t]), step.y[None, :], np.array([f_prev]))
+        e = target - float(ch["key_dip"][0])
+        f = float(np.interp(t1, meas.time, ff)) + kp * e + kd * (e - e_prev) / dt
+        f = min(max(f, 0.0), 200.0)
+        step.advance(t1, f_prev, f)
+        e_prev, f_prev = e, f
+        if step.status != 0:
+            break
+    return step.result()
+
+
+def noise_sigma(x: np.ndarray) -> float:
+    """Noise standard deviation of a sampled signal: robust second differences, floored at
+    the quantization step's sqrt(1/12) when the signal is quantized."""
+    x = np.asarray(x, float)
+    if x.size < 5:
+        return math.nan
+    d2 = np.diff(x, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    d1 = np.abs(np.diff(x))
+    pos = d1[d1 > 1e-12 * max(1e-300, float(np.max(np.abs(x))))]
+    if pos.size:
+        q = float(pos.min())
+        k = pos / q
+        if np.mean(np.abs(k - np.round(k)) < 1e-3) > 0.95:  # values on a grid: quantized
+            sigma = max(sigma, q / math.sqrt(12.0))
+    return sigma
+

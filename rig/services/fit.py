@@ -1,0 +1,74 @@
+"""`rig fit`: fit model or effect parameters to one or many runs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rig.analysis import fit as ft
+from rig.analysis import measurement as ms
+from rig.model.action import ActionModel
+
+
+def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
+        input: str = "force", duration: float | None = None,
+        channels: Sequence[str] | None = None, jobs: int | None = None,
+        max_nfev: int = 40, write: Path | None = None,
+        progress: Callable[[float, float, str], None] | None = None) -> ft.FitResult:
+    """Fit ``params`` on every trial of every run (in parallel over cores)."""
+    if not runs:
+        raise ValueError("runs: expected at least one run file")
+    model = ActionModel.from_yaml(model_file)
+    meas = [m for r in runs for m in ms.load(r)]
+    data = ft.Data.build(meas, input, duration, channels)
+    res = ft.fit(model, data, params, jobs=jobs, max_nfev=max_nfev, progress=progress)
+    if write is not None:
+        write_model(model_file, res, write)
+    return res
+
+
+def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
+    """The model YAML with the fitted values: effect values in ``effects``, model parameters
+    as overrides in ``parameters`` (a parameter file reference is kept as is and must then
+    not be combined with fitted model parameters)."""
+    from rig.analysis.diagnose import _rebase_effect, _rel
+
+    data: dict[str, Any] = {}
+    base_dir = Path.cwd()
+    if model_file is not None:
+        data = yaml.safe_load(Path(model_file).read_text()) or {}
+        base_dir = Path(model_file).resolve().parent
+    out_dir = Path(out).resolve().parent
+    effects = [_rebase_effect(e, base_dir, out_dir) for e in data.get("effects") or []]
+    for t in res.targets:
+        v = float(res.values[t.label])
+        if t.effect is None:
+            params = data.get("parameters")
+            if isinstance(params, str):
+                raise ValueError(f"write: {model_file} names a parameter file; add {t.label} "
+                                 f"= {v:.6g} to it by hand")
+            tree = data.setdefault("parameters", {})
+            node = tree
+            parts = t.key.split(".")
+            for part in parts[:-1]:
+                key: Any = int(part) if part.isdigit() else part
+                node = node.setdefault(key, {})
+            last: Any = int(parts[-1]) if parts[-1].isdigit() else parts[-1]
+            node[last] = v
+            continue
+        for i, e in enumerate(effects):
+            name = next(iter(e)) if isinstance(e, dict) else e
+            if name == t.effect or (isinstance(name, str) and name.endswith(f":{t.effect}")):
+                vals = dict(e[name] or {}) if isinstance(e, dict) else {}
+                vals[t.key] = v
+                effects[i] = {name: vals}
+                break
+    if isinstance(data.get("parameters"), str):
+        data["parameters"] = _rel(base_dir / data["parameters"], out_dir)
+    data["effects"] = effects
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(yaml.safe_dump(data, sort_keys=False))
+    return Path(out)
