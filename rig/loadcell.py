@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from rig.bridge import add_ni_bridge_channel, ni_null_and_shunt
 from rig.config import LoadCell
 
 
@@ -26,19 +27,11 @@ def to_newtons(ratio: np.ndarray | float, sensitivity: float, offset: float) -> 
 
 def add_ni_channel(task: Any, cfg: LoadCell, name: str = "load_cell") -> None:
     """Add the load cell to an nidaqmx task as a full-bridge V/V channel."""
-    from nidaqmx.constants import BridgeConfiguration, BridgeUnits, ExcitationSource
-
-    r = cfg.input_range_mv_per_v * 1e-3
-    task.ai_channels.add_ai_bridge_chan(
-        cfg.physical_channel, name_to_assign_to_channel=name, min_val=-r, max_val=r,
-        units=BridgeUnits.VOLTS_PER_VOLT, bridge_config=BridgeConfiguration.FULL_BRIDGE,
-        voltage_excit_source=ExcitationSource.INTERNAL, voltage_excit_val=cfg.excitation_volts,
-        nominal_bridge_resistance=cfg.bridge_resistance_ohm)
+    add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
+                          False, cfg.excitation_volts, cfg.bridge_resistance_ohm)
 
 
 def ni_calibrate(task: Any, cfg: LoadCell, name: str = "load_cell",
                  shunt_resistor_ohm: float = 100000.0) -> None:
     """Offset nulling then shunt calibration on the SCXI-1520 (key unloaded)."""
-    task.perform_bridge_offset_nulling_cal(channel=name)
-    task.perform_bridge_shunt_cal(channel=name, shunt_resistor_value=shunt_resistor_ohm,
-                                  bridge_resistance=cfg.bridge_resistance_ohm)
+    ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.bridge_resistance_ohm)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from rig.bridge import add_ni_bridge_channel, ni_null_and_shunt
 from rig.config import StrainGauge
 
 
@@ -31,19 +32,11 @@ def to_ratio(strain: np.ndarray | float, gage_factor: float, offset: float,
 
 def add_ni_channel(task: Any, cfg: StrainGauge, name: str = "strain_gauge") -> None:
     """Add the gauge to an nidaqmx task as a quarter-bridge V/V channel (350 ohm)."""
-    from nidaqmx.constants import BridgeConfiguration, BridgeUnits, ExcitationSource
-
-    r = cfg.input_range_mv_per_v * 1e-3
-    task.ai_channels.add_ai_bridge_chan(
-        cfg.physical_channel, name_to_assign_to_channel=name, min_val=-r, max_val=r,
-        units=BridgeUnits.VOLTS_PER_VOLT, bridge_config=BridgeConfiguration.QUARTER_BRIDGE,
-        voltage_excit_source=ExcitationSource.INTERNAL, voltage_excit_val=cfg.excitation_volts,
-        nominal_bridge_resistance=cfg.nominal_resistance_ohm)
+    add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
+                          True, cfg.excitation_volts, cfg.nominal_resistance_ohm)
 
 
 def ni_calibrate(task: Any, cfg: StrainGauge, name: str = "strain_gauge",
                  shunt_resistor_ohm: float = 100000.0) -> None:
     """Offset nulling and shunt calibration; bridge_resistance must be 350 (NI defaults to 120)."""
-    task.perform_bridge_offset_nulling_cal(channel=name)
-    task.perform_bridge_shunt_cal(channel=name, shunt_resistor_value=shunt_resistor_ohm,
-                                  bridge_resistance=cfg.nominal_resistance_ohm)
+    ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.nominal_resistance_ohm)
