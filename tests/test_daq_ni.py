@@ -115,8 +115,16 @@ def test_reader_sets_up_bridges_and_clocked_encoders(ni) -> None:
             2000.0, source="/Dev2/ai/SampleClock", sample_mode=AcquisitionType.CONTINUOUS,
             samps_per_chan=4000)
         r.calibrate_bridges()
-        ai.perform_bridge_shunt_cal.assert_called_with(
-            channel="strain_gauge", shunt_resistor_value=100000.0, bridge_resistance=350.0)
+        # each bridge: offset nulling, then NI's shunt calibration with the bridge's own
+        # 350 ohm (nidaqmx's bridge_resistance defaults to 120)
+        assert ai.method_calls[-4:] == [
+            mock.call.perform_bridge_offset_nulling_cal(channel="load_cell"),
+            mock.call.perform_bridge_shunt_cal(channel="load_cell", shunt_resistor_value=100000.0,
+                                               bridge_resistance=350.0),
+            mock.call.perform_bridge_offset_nulling_cal(channel="strain_gauge"),
+            mock.call.perform_bridge_shunt_cal(channel="strain_gauge",
+                                               shunt_resistor_value=100000.0,
+                                               bridge_resistance=350.0)]
         r.start()
         hammer.start.assert_called_once_with()
         ai.start.assert_called_once_with()

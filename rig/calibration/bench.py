@@ -245,9 +245,15 @@ class NiBench(Bench):
 
     def drive_static(self, demand_n: np.ndarray) -> np.ndarray:
         """Buffered AO waveform on the drive card; the load cell on the bridge card, started
-        by the AO start trigger (declare the RTSI cable in NI MAX), same number of periods."""
+        by the AO start trigger (declare the RTSI cable in NI MAX), same number of periods.
+
+        The waveform ends at 0 V. If anything fails before it has been played out, the
+        waveform task is stopped and closed and a fresh on-demand task writes 0 V, since an
+        analog output holds its last value; a DAQmx error becomes a one-line DaqFault."""
+        import nidaqmx.errors
         from nidaqmx.constants import AcquisitionType
 
+        from rig.daq import DaqFault
         from rig.motor_torque import TorqueScaling
         from rig.ni_daq import _new_task
 
@@ -262,24 +268,53 @@ class NiBench(Bench):
                                       samps_per_chan=n_ai)
         dev = out.physical_channel.split("/")[0]
         ai.triggers.start_trigger.cfg_dig_edge_start_trig(f"/{dev}/ao/StartTrigger")
-        ao = _new_task("rig-cal-drive")
+        ao: Any = None
+        done = False
         try:
+            ao = _new_task("rig-cal-drive")
             ao.ao_channels.add_ao_voltage_chan(out.physical_channel, min_val=out.min_volts,
                                                max_val=out.max_volts)
             ao.timing.cfg_samp_clk_timing(cfg.rates.control_hz,
                                           sample_mode=AcquisitionType.FINITE,
                                           samps_per_chan=volts.size)
             ao.write(volts.tolist(), auto_start=False)
-            ai.start()
+            ai.start()      # armed: it waits for the AO start trigger
             ao.start()
             data = np.asarray(ai.read(number_of_samples_per_channel=n_ai,
                                       timeout=volts.size / cfg.rates.control_hz + 10.0), float)
             ao.wait_until_done(timeout=10.0)
+            done = True
+        except nidaqmx.errors.DaqError as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise DaqFault(f"motor: the drive waveform or its load-cell acquisition failed "
+                           f"(DAQmx {exc.error_code}): {first}") from None
         finally:
-            ai.stop()
-            ai.triggers.start_trigger.disable_start_trig()
-            ao.close()
+            try:
+                if ao is not None:
+                    try:
+                        if not done:
+                            ao.stop()
+                    finally:
+                        ao.close()
+                if not done:
+                    self._zero_drive()
+            finally:
+                ai.stop()
+                ai.triggers.start_trigger.disable_start_trig()
         return data
+
+    def _zero_drive(self) -> None:
+        """0 V on the drive output from an on-demand task (after the waveform task closed)."""
+        from rig.ni_daq import _new_task
+
+        out = self.cfg.channels.drive_output
+        task = _new_task("rig-cal-drive-zero")
+        try:
+            task.ao_channels.add_ao_voltage_chan(out.physical_channel, min_val=out.min_volts,
+                                                 max_val=out.max_volts)
+            task.write(0.0, auto_start=True)
+        finally:
+            task.close()
 
     def key_travel(self, force_n: np.ndarray) -> dict[str, np.ndarray]:
         """The operator presses the key slowly by hand for as long as ``force_n`` lasts;

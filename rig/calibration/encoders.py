@@ -76,14 +76,16 @@ def check(cfg: RigConfig, bench: Bench, tolerance: float = 0.1, min_counts: int 
     if key_name is not None:
         e = encs[key_name]
         dip_meas = e.sign * (counts[key_name] - counts[key_name][0]) * e.si_per_count
-    n = min(model["key_dip"].size, *(c.size for c in counts.values()))
-    dip_model = model["key_dip"][:n]
+    # The measured and the model's press are compared by key dip, never sample by sample:
+    # on NI the operator's hand sets the pace and the counters are read once per control
+    # period, while the model runs at the acquisition rate.
+    dip_model = model["key_dip"]
     for name, e in encs.items():
-        c = counts[name][:n] - counts[name][0]
+        c = counts[name] - counts[name][0]
         value = e.sign * c * e.si_per_count
         span = float(np.ptp(c))
         r: dict[str, Any] = {"counts_range": span, "problem": ""}
-        expected = dip_model if e.kind == "linear" else model[f"{e.body}_angle"][:n]
+        expected = dip_model if e.kind == "linear" else model[f"{e.body}_angle"]
         ext = int(np.argmax(np.abs(expected)))
         mext = int(np.argmax(np.abs(value)))
         r["expected_extreme"] = float(expected[ext])
@@ -102,15 +104,19 @@ def check(cfg: RigConfig, bench: Bench, tolerance: float = 0.1, min_counts: int 
                                 f"where the action gives {expected[ext] * 1e3:.2f} mm (ratio "
                                 f"{ratio:.3f}): check metres_per_count")
         elif dip_meas is not None:
-            dm = dip_meas[:n]
-            # before let-off: the first 60 % of the key's travel, on the way down
-            top = int(np.argmax(dm))
-            sel = (dm[:top] > 0.1 * dm[top]) & (dm[:top] < 0.6 * dm[top])
-            if sel.sum() < 10:
+            # before let-off, on the way down: key dips between 10 % and 60 % of the
+            # shallower of the two presses' bottoms, the same dip window for both
+            top_m, top_x = int(np.argmax(dip_meas)), int(np.argmax(dip_model))
+            bottom = min(float(dip_meas[top_m]), float(dip_model[top_x]))
+            dm, vm = dip_meas[:top_m], value[:top_m]
+            dx, vx = dip_model[:top_x], expected[:top_x]
+            sel_m = (dm > 0.1 * bottom) & (dm < 0.6 * bottom)
+            sel_x = (dx > 0.1 * bottom) & (dx < 0.6 * bottom)
+            if min(sel_m.sum(), sel_x.sum()) < 10:
                 r["problem"] = "resolution: the key did not travel far enough to compare"
             else:
-                s_meas = np.polyfit(dm[:top][sel], value[:top][sel], 1)[0]
-                s_model = np.polyfit(dip_model[:top][sel], expected[:top][sel], 1)[0]
+                s_meas = np.polyfit(dm[sel_m], vm[sel_m], 1)[0]
+                s_model = np.polyfit(dx[sel_x], vx[sel_x], 1)[0]
                 ratio = float(s_meas / s_model)
                 r.update(slope_rad_per_m=float(s_meas), model_slope_rad_per_m=float(s_model),
                          ratio_to_model=ratio)
