@@ -1,7 +1,7 @@
 """Runtime benchmark for `rig run`: loop lateness on the simulated rig in real time next to a
 bare pacing loop run at the same time, and the acquisition's sustained storage rate.
 
-    .venv/bin/python benchmarks/runtime.py [--seconds 32]
+    .venv/bin/python benchmarks/runtime.py [--seconds 32] [--rigid] [--second-bare]
 
 Prints figures and ratios (no pass/fail): targets are p99 lateness < 0.5 ms at 500 Hz, no more
 missed cycles than the bare loop, and >= 20x headroom over 2 kHz x 5 channels.
@@ -34,6 +34,7 @@ def bare_loop(seconds: float, q: mp.Queue, go: Any, priority: int) -> None:
     n = int(seconds / dt)
     late = np.empty(n)
     missed = 0
+    events: list[tuple[float, int]] = []  # (deadline of the first missed tick, ticks missed)
     t0 = time.perf_counter() + 0.01
     i = 0
     k = 0
@@ -42,16 +43,39 @@ def bare_loop(seconds: float, q: mp.Queue, go: Any, priority: int) -> None:
         behind = int((now - t0) / dt)
         if behind > i:
             missed += behind - i
+            events.append((t0 + i * dt, behind - i))
             i = behind
         late[k] = now - (t0 + i * dt)
         k += 1
         i += 1
     q.put((float(np.median(late)), float(np.percentile(late, 99)), float(late.max()), missed,
-           rt))
+           rt, events))
+
+
+def shared_events(a: list[tuple[float, int]], b: list[tuple[float, int]], dt: float = 0.002,
+                  slack: float = 0.004) -> int:
+    """How many of ``a``'s miss events (start, ticks) overlap one of ``b``'s within ``slack``:
+    a stall both loops saw is the machine's, one only one loop saw is that loop's (or its CPU's)."""
+    n = 0
+    for s, m in a:
+        if any(t - slack <= s + (m + 1) * dt and s - slack <= t + (k + 1) * dt for t, k in b):
+            n += 1
+    return n
+
+
+def rig_events(path: Path, t_start: float, dt: float = 0.002) -> list[tuple[float, int]]:
+    """The run's miss events on the same clock as the bare loop's (perf_counter)."""
+    r = runfile.read(path)
+    out = []
+    for tr in r.trials:
+        for tick, m in zip(tr.commands["tick"], tr.commands["missed"], strict=True):
+            if m > 0:
+                out.append((t_start + (int(tick) - int(m)) * dt, int(m)))
+    return out
 
 
 def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False,
-                   priority: int | None = None) -> None:
+                   priority: int | None = None, second_bare: bool = False) -> None:
     prof = tmp / "long.yaml"
     prof.write_text("name: long\nsegments:\n  - {hold: 0.02}\n  - {ramp: 0.08, to: 30}\n"
                     "  - {hold: 0.2}\n  - {ramp: 0.04, to: 0}\n  - {hold: 0.26}\n")
@@ -70,13 +94,21 @@ def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False,
     bare = ctx.Process(target=bare_loop, args=(trials * 1.0, q, go, cfg.loop.realtime_priority))
     bare.start()
     assert q.get(timeout=60) == "ready"
+    q2: mp.Queue = ctx.Queue()
+    bare2 = None
+    if second_bare:  # control: how far apart two identical bare loops are
+        bare2 = ctx.Process(target=bare_loop, args=(trials * 1.0, q2, go,
+                                                    cfg.loop.realtime_priority))
+        bare2.start()
+        assert q2.get(timeout=60) == "ready"
 
-    started = {"done": False}
+    started: dict[str, Any] = {"done": False, "t_start": 0.0}
 
     def start_bare(c: svc.CycleContext) -> None:
         if not started["done"]:
             go.set()
             started["done"] = True
+            started["t_start"] = float(getattr(c.daq, "t_start", 0.0))
 
     rep = svc.run(prof, cfg, trials=trials, out=tmp / "bench.h5", on_cycle=start_bare)
     bare.join()
@@ -94,6 +126,16 @@ def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False,
     print(f"  ratio p99 rig/bare {lat['p99_s'] / max(b[1], 1e-9):.1f}; p99 target 0.5 ms: "
           f"{'met' if lat['p99_s'] < 5e-4 else 'NOT met'}; missed rig {lat['missed']:.0f} vs "
           f"bare {b[3]}")
+    ev = rig_events(rep.path, started["t_start"])
+    print(f"  miss events: rig {len(ev)} ({len(ev) - shared_events(ev, b[5])} not shared with the "
+          f"bare loop), bare {len(b[5])} ({len(b[5]) - shared_events(b[5], ev)} not shared with "
+          f"the rig loop)")
+    if bare2 is not None:
+        bare2.join()
+        c2 = q2.get()
+        print(f"  control, a second bare loop: missed {c2[3]}, p99 {c2[1] * 1e3:.3f} ms; events "
+              f"{len(c2[5])} ({len(c2[5]) - shared_events(c2[5], b[5])} not shared with the first "
+              f"bare loop, which had {len(b[5]) - shared_events(b[5], c2[5])} of its own)")
 
 
 def _sched(priority: float) -> str:
@@ -142,10 +184,12 @@ def main() -> None:
     ap.add_argument("--rigid", action="store_true", help="rigid model, no strain gauge")
     ap.add_argument("--priority", type=int, default=None,
                     help="loop.realtime_priority for both loops (0 = normal scheduling)")
+    ap.add_argument("--second-bare", action="store_true",
+                    help="control: a second bare loop at the same time (bare vs bare spread)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        loop_benchmark(args.seconds, tmp, args.rigid, args.priority)
+        loop_benchmark(args.seconds, tmp, args.rigid, args.priority, args.second_bare)
         acquisition_benchmark(tmp)
 
 
