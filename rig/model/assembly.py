@@ -87,7 +87,6 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     w = t["points"]["whippen"]
     sp[k.S_PW2X], sp[k.S_PW2Y] = w["Pw2"]["at"]
     sp[k.S_PW3X], sp[k.S_PW3Y] = w["Pw3"]["at"]
-    sp[k.S_HEADX], sp[k.S_HEADY] = HEAD_ORIGIN_IN_HAMMER
     beam = t["hammer_shank_beam"]
     length = beam["length"]
     # the shank runs from its root (glued in the flange) toward the head: -x of the hammer frame

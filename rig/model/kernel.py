@@ -44,15 +44,14 @@ K_LINE, K_CIRCLE, K_HYBRID = 1, 2, 3
 S_G = 0
 S_PG2X, S_PG2Y, S_PG3X, S_PG3Y = 1, 2, 3, 4
 S_PW2X, S_PW2Y, S_PW3X, S_PW3Y = 5, 6, 7, 8
-S_HEADX, S_HEADY = 9, 10  # head/shank frame origin in the hammer frame
-S_ROOTX, S_ROOTY = 11, 12  # shank root in the hammer frame
-S_DX, S_DY, S_NX, S_NY = 13, 14, 15, 16  # shank axis and transverse unit vectors (hammer frame)
-S_L, S_EA, S_EJ, S_BETA = 17, 18, 19, 20  # beam length, axial & bending stiffness, damping
-S_KEYPX, S_KEYPY = 21, 22  # input force point on the key
-S_PIVY0 = 23
-S_JACK_T, S_REP_K, S_REP_TH0 = 24, 25, 26
-S_LIFTOFF, S_FLEX = 27, 28
-N_SP = 29
+S_ROOTX, S_ROOTY = 9, 10  # shank root in the hammer frame
+S_DX, S_DY, S_NX, S_NY = 11, 12, 13, 14  # shank axis and transverse unit vectors (hammer frame)
+S_L, S_EA, S_EJ, S_BETA = 15, 16, 17, 18  # beam length, axial & bending stiffness, damping
+S_KEYPX, S_KEYPY = 19, 20  # input force point on the key
+S_PIVY0 = 21
+S_JACK_T, S_REP_K, S_REP_TH0 = 22, 23, 24
+S_LIFTOFF, S_FLEX = 25, 26
+N_SP = 27
 
 # joint friction rows (jf): key, whippen, jack, repetition, hammer, key slider on its
 # balance-rail pin (lift-off; force in N, speed in m/s) ; cols E, F1, F2, wt
