@@ -491,8 +491,8 @@ class ActionModel:
                  force: np.ndarray) -> dict[str, np.ndarray]:
         """Output channels (SI) from sampled states and key forces."""
         n = time.shape[0]
-        xo = np.zeros((n, k.N_X))
-        co = np.zeros((n, self.packed.n_contacts, k.N_CONTACT_OUT))
+        xo = np.zeros((k.N_X, n))
+        co = np.zeros((k.N_CONTACT_OUT, n, self.packed.n_contacts))
         if n:
             k.sample_outputs(self.packed.arrays, self._workspace(), states, force,
                              self._head_pt, self._gauge, xo, co)
@@ -501,21 +501,21 @@ class ActionModel:
         for name, qi in ANGLE_CHANNELS.items():
             ch[name] = states[:, qi].copy()
             ch[name.replace("_angle", "_angular_velocity")] = states[:, k.NQ + qi].copy()
-        ch["hammer_head_velocity"] = xo[:, k.X_HEAD_VY]
-        ch["hammer_head_x"] = xo[:, k.X_HEAD_X]
-        ch["hammer_head_y"] = xo[:, k.X_HEAD_Y]
-        ch["key_dip"] = rest_keytop - xo[:, k.X_KEYTOP_Y]
-        ch["contact_force"] = co[:, :, k.O_FN].copy()
-        ch["contact_friction"] = co[:, :, k.O_FT].copy()
-        ch["contact_penetration"] = co[:, :, k.O_PEN].copy()
-        ch["contact_penetration_rate"] = co[:, :, k.O_PENRATE].copy()
-        ch["contact_slip"] = co[:, :, k.O_SLIP].copy()
-        ch["contact_point_x"] = co[:, :, k.O_PX].copy()
+        ch["hammer_head_velocity"] = xo[k.X_HEAD_VY]
+        ch["hammer_head_x"] = xo[k.X_HEAD_X]
+        ch["hammer_head_y"] = xo[k.X_HEAD_Y]
+        ch["key_dip"] = rest_keytop - xo[k.X_KEYTOP_Y]
+        ch["contact_force"] = co[k.O_FN]
+        ch["contact_friction"] = co[k.O_FT]
+        ch["contact_penetration"] = co[k.O_PEN]
+        ch["contact_penetration_rate"] = co[k.O_PENRATE]
+        ch["contact_slip"] = co[k.O_SLIP]
+        ch["contact_point_x"] = co[k.O_PX]
         if self.build.flags["flexible_shank"]:
-            ch["shank_strain"] = xo[:, k.X_STRAIN]
-            ch["shank_tip_deflection"] = xo[:, k.X_TIP_DEFL]
+            ch["shank_strain"] = xo[k.X_STRAIN]
+            ch["shank_tip_deflection"] = xo[k.X_TIP_DEFL]
         if self.build.flags["liftoff"]:
-            ch["key_lift"] = xo[:, k.X_KEY_LIFT]
+            ch["key_lift"] = xo[k.X_KEY_LIFT]
         for e, sl in self.effect_states:
             for st, col in zip(e.states, range(sl.start, sl.stop), strict=True):
                 ch[f"{e.name}_{st.name}"] = states[:, col].copy()
@@ -523,11 +523,11 @@ class ActionModel:
 
     def _keytop_rest(self) -> float:
         rest = self.rest_state()[None, :]
-        xo = np.zeros((1, k.N_X))
-        co = np.zeros((1, self.packed.n_contacts, k.N_CONTACT_OUT))
+        xo = np.zeros((k.N_X, 1))
+        co = np.zeros((k.N_CONTACT_OUT, 1, self.packed.n_contacts))
         k.sample_outputs(self.packed.arrays, self._workspace(), rest, np.zeros(1),
                          self._head_pt, self._gauge, xo, co)
-        return float(xo[0, k.X_KEYTOP_Y])
+        return float(xo[k.X_KEYTOP_Y, 0])
 
     def result_from_samples(self, time: np.ndarray, states: np.ndarray, force: np.ndarray,
                             status: int = 0, message: str = "ok") -> SimResult:

@@ -90,7 +90,7 @@ def _rot(phi, x, y):
 
 
 @njit(cache=True, inline="always")
-def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs):
+def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
     """Frame k = cross-section of the shank at distance xi from its root."""
     th = q[QH]
     wh = qd[QH]
@@ -113,13 +113,15 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs):
     b = xi2 * v1 + xi3 * v2
     px = sp[S_ROOTX] + dx * a + nx * b
     py = sp[S_ROOTY] + dy * a + ny * b
-    rpx, rpy = _rot(th, px, py)
+    rpx = ch * px - sh * py
+    rpy = sh * px + ch * py
     org[k, 0] = sp[S_PG3X] + rpx
     org[k, 1] = sp[S_PG3Y] + rpy
     slope = 2.0 * xi * v1 + 3.0 * xi2 * v2
     phi[k] = th + sg * slope
-    cs[k, 0] = math.cos(phi[k])
-    cs[k, 1] = math.sin(phi[k])
+    if need_cs:
+        cs[k, 0] = math.cos(phi[k])
+        cs[k, 1] = math.sin(phi[k])
     dslope = 2.0 * xi * dv1 + 3.0 * xi2 * dv2
     w[k] = wh + sg * dslope
     for j in range(QH, NQ):
@@ -130,8 +132,10 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs):
     JO[k, 1, QH] = rpx
     Jp[k, QH] = 1.0
     if sp[S_FLEX] > 0.5:
-        ex, ey = _rot(th, dx, dy)
-        tx, ty = _rot(th, nx, ny)
+        ex = ch * dx - sh * dy
+        ey = sh * dx + ch * dy
+        tx = ch * nx - sh * ny
+        ty = sh * nx + ch * ny
         JO[k, 0, QU1] = ex * xi
         JO[k, 1, QU1] = ey * xi
         JO[k, 0, QV1] = -ex * ds1 + tx * xi2
@@ -179,7 +183,7 @@ def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, 
     al[k] = al[parent]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
     """Fill every frame's pose, velocity, Jacobians and bias accelerations."""
     nf = org.shape[0]
@@ -218,9 +222,12 @@ def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
     w[F_HAMMER] = qd[QH]
     Jp[F_HAMMER, QH] = 1.0
     # head: carried at the shank's free end (its frame origin is the shank tip)
-    _beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs)
+    ch = math.cos(q[QH])
+    sh = math.sin(q[QH])
+    _beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, True)
     for s in range(sec_xi.shape[0]):
-        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al, cs)
+        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al,
+                      cs, ch, sh, True)
     for f in range(F_HEAD):
         cs[f, 0] = math.cos(phi[f])
         cs[f, 1] = math.sin(phi[f])
@@ -353,7 +360,7 @@ def normal_force_law(pen, pen_rate, law):
     return normal_force(pen, pen_rate, a, b, c, law[L_D])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
@@ -495,12 +502,15 @@ def _inertia(q, qd, g, model, ws):
     # flexible shank: Gauss particles (xi, mass, rotary inertia) on a scratch frame
     if sp[S_FLEX] > 0.5:
         k = org.shape[0] - 1
+        ch = math.cos(q[QH])
+        sh = math.sin(q[QH])
         for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
+            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
+                          False)
             _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, g, cs, w, JO, Jp, aO, al, M, Q)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def accelerations(t, y, f_key, model, ws, full):
     """Generalized accelerations for state y under key force f_key (N, downward)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
@@ -565,7 +575,8 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     """Derived channels for each state row of Y under key forces F.
 
     head_pt: striking-felt centre in the head frame; gauge: (xi from root, y) of
-    the strain gauge. out gets the X_* columns, cout_all every contact's outputs.
+    the strain gauge. out[X_*, row] gets the derived values and cout_all[O_*, row,
+    contact] every contact's outputs (channel-major, so each channel is contiguous).
     """
     sp, sec_xi, cf, cl, jf, me, beam = model
     org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
@@ -575,23 +586,23 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
         contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True)
         for i in range(cout.shape[0]):
             for j in range(N_CONTACT_OUT):
-                cout_all[r, i, j] = cout[i, j]
+                cout_all[j, r, i] = cout[i, j]
         hx = cs[F_HEAD, 0] * head_pt[0] - cs[F_HEAD, 1] * head_pt[1]
         hy = cs[F_HEAD, 1] * head_pt[0] + cs[F_HEAD, 0] * head_pt[1]
-        out[r, X_HEAD_VX] = vO[F_HEAD, 0] - w[F_HEAD] * hy
-        out[r, X_HEAD_VY] = vO[F_HEAD, 1] + w[F_HEAD] * hx
-        out[r, X_HEAD_X] = org[F_HEAD, 0] + hx
-        out[r, X_HEAD_Y] = org[F_HEAD, 1] + hy
+        out[X_HEAD_VX, r] = vO[F_HEAD, 0] - w[F_HEAD] * hy
+        out[X_HEAD_VY, r] = vO[F_HEAD, 1] + w[F_HEAD] * hx
+        out[X_HEAD_X, r] = org[F_HEAD, 0] + hx
+        out[X_HEAD_Y, r] = org[F_HEAD, 1] + hy
         ky = cs[F_KEY, 1] * sp[S_KEYPX] + cs[F_KEY, 0] * sp[S_KEYPY]
-        out[r, X_KEYTOP_Y] = org[F_KEY, 1] + ky
+        out[X_KEYTOP_Y, r] = org[F_KEY, 1] + ky
         ln = sp[S_L]
-        out[r, X_TIP_DEFL] = ln * ln * y[QV1] + ln * ln * ln * y[QV2]
+        out[X_TIP_DEFL, r] = ln * ln * y[QV1] + ln * ln * ln * y[QV2]
         xi = gauge[0]
         yg = gauge[1]
         u1 = y[QU1]
         curv = 2.0 * y[QV1] + 6.0 * xi * y[QV2]
-        out[r, X_STRAIN] = u1 + 0.5 * u1 * u1 - yg * curv + 0.5 * yg * yg * curv * curv
-        out[r, X_KEY_LIFT] = y[QYK]
+        out[X_STRAIN, r] = u1 + 0.5 * u1 * u1 - yg * curv + 0.5 * yg * yg * curv * curv
+        out[X_KEY_LIFT, r] = y[QYK]
 
 
 @njit(cache=True)
@@ -614,8 +625,11 @@ def energy(y, model, ws):
     elastic = 0.0
     if sp[S_FLEX] > 0.5:
         k = org.shape[0] - 1
+        ch = math.cos(q[QH])
+        sh = math.sin(q[QH])
         for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs)
+            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
+                          False)
             pot += beam[p, 1] * g * org[k, 1]
         ln = sp[S_L]
         v1 = q[QV1]
