@@ -83,13 +83,6 @@ def _block(f):
 
 
 @njit(cache=True, inline="always")
-def _rot(phi, x, y):
-    c = math.cos(phi)
-    s = math.sin(phi)
-    return c * x - s * y, s * x + c * y
-
-
-@njit(cache=True, inline="always")
 def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
     """Frame k = cross-section of the shank at distance xi from its root."""
     th = q[QH]
@@ -162,9 +155,12 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
 
 
 @njit(cache=True, inline="always")
-def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, al, qi):
+def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, al, cs, qi):
     """Frame k pinned at parent-frame point (px, py), turning by coordinate qi."""
-    rx, ry = _rot(phi[parent], px, py)
+    c = cs[parent, 0]
+    s = cs[parent, 1]
+    rx = c * px - s * py
+    ry = s * px + c * py
     org[k, 0] = org[parent, 0] + rx
     org[k, 1] = org[parent, 1] + ry
     wp = w[parent]
@@ -179,6 +175,8 @@ def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, 
     aO[k, 0] = aO[parent, 0] - al[parent] * ry - wp * wp * rx
     aO[k, 1] = aO[parent, 1] + al[parent] * rx - wp * wp * ry
     phi[k] = phi[parent] + q_own
+    cs[k, 0] = math.cos(phi[k])
+    cs[k, 1] = math.sin(phi[k])
     w[k] = wp + qd_own
     al[k] = al[parent]
 
@@ -199,38 +197,42 @@ def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
         al[k] = 0.0
     # Jacobian entries outside a frame's coordinate block stay zero from make_workspace
     # and are never read.
-    # key pivot (massless body when lift-off is on)
+    # ground and key pivot (massless body when lift-off is on) do not turn
+    for f in (F_GROUND, F_PIVOT):
+        cs[f, 0] = 1.0
+        cs[f, 1] = 0.0
     org[F_PIVOT, 1] = sp[S_PIVY0] + q[QYK]
     if sp[S_LIFTOFF] > 0.5:
         JO[F_PIVOT, 1, QYK] = 1.0
         vO[F_PIVOT, 1] = qd[QYK]
-    _child_frame(F_KEY, F_PIVOT, 0.0, 0.0, q[QK], qd[QK], org, phi, w, vO, JO, Jp, aO, al, QK)
+    _child_frame(F_KEY, F_PIVOT, 0.0, 0.0, q[QK], qd[QK], org, phi, w, vO, JO, Jp, aO, al, cs, QK)
     # whippen on its ground pivot
     org[F_WHIPPEN, 0] = sp[S_PG2X]
     org[F_WHIPPEN, 1] = sp[S_PG2Y]
     phi[F_WHIPPEN] = q[QW]
+    cs[F_WHIPPEN, 0] = math.cos(q[QW])
+    cs[F_WHIPPEN, 1] = math.sin(q[QW])
     w[F_WHIPPEN] = qd[QW]
     Jp[F_WHIPPEN, QW] = 1.0
     _child_frame(F_JACK, F_WHIPPEN, sp[S_PW2X], sp[S_PW2Y], q[QJ], qd[QJ],
-                 org, phi, w, vO, JO, Jp, aO, al, QJ)
+                 org, phi, w, vO, JO, Jp, aO, al, cs, QJ)
     _child_frame(F_REP, F_WHIPPEN, sp[S_PW3X], sp[S_PW3Y], q[QR], qd[QR],
-                 org, phi, w, vO, JO, Jp, aO, al, QR)
+                 org, phi, w, vO, JO, Jp, aO, al, cs, QR)
     # hammer base on its ground pivot
     org[F_HAMMER, 0] = sp[S_PG3X]
     org[F_HAMMER, 1] = sp[S_PG3Y]
     phi[F_HAMMER] = q[QH]
+    ch = math.cos(q[QH])
+    sh = math.sin(q[QH])
+    cs[F_HAMMER, 0] = ch
+    cs[F_HAMMER, 1] = sh
     w[F_HAMMER] = qd[QH]
     Jp[F_HAMMER, QH] = 1.0
     # head: carried at the shank's free end (its frame origin is the shank tip)
-    ch = math.cos(q[QH])
-    sh = math.sin(q[QH])
     _beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, True)
     for s in range(sec_xi.shape[0]):
         _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al,
                       cs, ch, sh, True)
-    for f in range(F_HEAD):
-        cs[f, 0] = math.cos(phi[f])
-        cs[f, 1] = math.sin(phi[f])
 
 
 @njit(cache=True, inline="always")
@@ -486,6 +488,69 @@ def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
 
 
 @njit(cache=True, inline="always")
+def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q):
+    """Mass matrix, gravity and velocity-product terms of the flexible shank's Gauss
+    particles (xi, mass, rotary inertia) on the hammer block.
+
+    The same sums as a particle frame per Gauss point through _mass_element, done in
+    the hammer frame: rotation leaves the dot products unchanged, so only gravity
+    needs the hammer's angle (R^T y = (sin, cos)).
+    """
+    wh = qd[QH]
+    u1 = q[QU1]
+    v1 = q[QV1]
+    v2 = q[QV2]
+    du1 = qd[QU1]
+    dv1 = qd[QV1]
+    dv2 = qd[QV2]
+    dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
+    sg = dx * ny - dy * nx
+    jx = np.empty(4)
+    jy = np.empty(4)
+    jp = np.empty(4)
+    for p in range(beam.shape[0]):
+        xi = beam[p, 0]
+        m = beam[p, 1]
+        inertia = beam[p, 2]
+        xi2 = xi * xi
+        xi3 = xi2 * xi
+        xi4 = xi3 * xi
+        xi5 = xi4 * xi
+        s_fore = (2.0 / 3.0) * xi3 * v1 * v1 + 1.5 * xi4 * v1 * v2 + 0.9 * xi5 * v2 * v2
+        ds1 = (4.0 / 3.0) * xi3 * v1 + 1.5 * xi4 * v2
+        ds2 = 1.5 * xi4 * v1 + 1.8 * xi5 * v2
+        a = xi * (1.0 + u1) - s_fore
+        b = xi2 * v1 + xi3 * v2
+        px = sp[S_ROOTX] + dx * a + nx * b
+        py = sp[S_ROOTY] + dy * a + ny * b
+        adot = xi * du1 - ds1 * dv1 - ds2 * dv2
+        bdot = xi2 * dv1 + xi3 * dv2
+        pdx = dx * adot + nx * bdot
+        pdy = dy * adot + ny * bdot
+        quad = (4.0 / 3.0) * xi3 * dv1 * dv1 + 3.0 * xi4 * dv1 * dv2 + 1.8 * xi5 * dv2 * dv2
+        # bias acceleration and gravity direction, hammer frame
+        ax = -wh * wh * px - 2.0 * wh * pdy - dx * quad + g * sh
+        ay = -wh * wh * py + 2.0 * wh * pdx - dy * quad + g * ch
+        # Jacobian columns for (theta_h, u1, v1, v2)
+        jx[0] = -py
+        jy[0] = px
+        jp[0] = 1.0
+        jx[1] = dx * xi
+        jy[1] = dy * xi
+        jp[1] = 0.0
+        jx[2] = -dx * ds1 + nx * xi2
+        jy[2] = -dy * ds1 + ny * xi2
+        jp[2] = sg * 2.0 * xi
+        jx[3] = -dx * ds2 + nx * xi3
+        jy[3] = -dy * ds2 + ny * xi3
+        jp[3] = sg * 3.0 * xi2
+        for i in range(4):
+            Q[QH + i] -= m * (jx[i] * ax + jy[i] * ay)
+            for j in range(4):
+                M[QH + i, QH + j] += m * (jx[i] * jx[j] + jy[i] * jy[j]) + inertia * jp[i] * jp[j]
+
+
+@njit(cache=True, inline="always")
 def _inertia(q, qd, g, model, ws):
     """Kinematics, then M and Q with gravity and velocity-product terms (all bodies)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
@@ -499,15 +564,8 @@ def _inertia(q, qd, g, model, ws):
     for e in range(me.shape[0]):
         _mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
                       cs, w, JO, Jp, aO, al, M, Q)
-    # flexible shank: Gauss particles (xi, mass, rotary inertia) on a scratch frame
     if sp[S_FLEX] > 0.5:
-        k = org.shape[0] - 1
-        ch = math.cos(q[QH])
-        sh = math.sin(q[QH])
-        for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
-                          False)
-            _mass_element(k, beam[p, 1], beam[p, 2], 0.0, 0.0, g, cs, w, JO, Jp, aO, al, M, Q)
+        _shank_inertia(q, qd, sp, beam, g, cs[F_HAMMER, 0], cs[F_HAMMER, 1], M, Q)
 
 
 @njit(cache=True, inline="always")
