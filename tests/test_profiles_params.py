@@ -16,9 +16,10 @@ def write(tmp_path, text, name="p.yaml"):
 
 
 def test_shipped_profiles(forte, piano):
-    assert forte.peak == 30.0 and piano.peak == 5.0
-    assert forte.duration == pytest.approx(0.6) and piano.duration == pytest.approx(0.6)
-    assert forte.at(0.0) == 0.0 and forte.at(forte.duration) == 0.0
+    assert forte.peak == 30.0 and piano.peak == 1.2
+    assert forte.duration == pytest.approx(0.6) and piano.duration == pytest.approx(0.7)
+    for p in (forte, piano):
+        assert p.at(0.0) == 0.0 and p.at(p.duration) == 0.0
 
 
 def test_points_and_csv_forms(tmp_path):

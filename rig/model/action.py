@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 
 from rig import profiles as _profiles
 from rig.model import assembly
@@ -80,7 +80,7 @@ CHANNEL_DOCS: dict[str, str] = {
     "contact_point_x": "ground x of each contact's point",
     "shank_strain": "axial strain at the strain gauge (Eq. 4.1), + = tension",
     "shank_tip_deflection": "shank tip's transverse deflection in the shank frame",
-    "key_lift": "key pivot's lift off the balance rail (prismatic coordinate)",
+    "key_lift": "key pivot's height above its rest on the balance rail (prismatic coordinate)",
 }
 
 # event name -> (contact id, direction), + = contact closes, - = opens
@@ -98,8 +98,16 @@ EVENT_ORDER = tuple(EVENT_DOCS)
 # rest states by equations_key: models with identical equations (a fit varying an input
 # or sensor parameter) settle the action once
 _REST_CACHE: dict[bytes, np.ndarray] = {}
+# balance-rail placements (offset m, rest state) by the equations before placement
+_RAIL_CACHE: dict[bytes, tuple[float, np.ndarray]] = {}
 KEY_MOVE_THRESHOLD_M = 2e-5
 HEAD_STRIKE_POINT = "Phh3"
+
+
+def _remember(cache: dict[bytes, Any], key: bytes, value: Any) -> None:
+    if len(cache) >= 256:
+        cache.clear()
+    cache[key] = value
 
 
 @dataclass
@@ -233,10 +241,7 @@ class ActionModel:
         for effect in self.effects:
             effect.apply(build)
         self.build = build
-        self.packed = assembly.pack(build.params, liftoff=build.flags["liftoff"],
-                                    flexible_shank=build.flags["flexible_shank"])
-        for (cid, col), value in build.contact_overrides.items():
-            self.packed.arrays[3][self.packed.contact_ids.index(cid), col] = value
+        self.packed = self._pack()
         num = build.params.tree["numerics"]
         self.python_forces = [e for e in self.effects if e.runs_in_python()]
         # states that effects add past the kernel's 18: (effect, slice of the state vector)
@@ -271,6 +276,17 @@ class ActionModel:
         gx, gy = beam["strain_gauge_at"][:2]
         self._gauge = np.array([beam["length"] - gx, gy])
         self._rest: np.ndarray | None = None
+        self.balance_rail: dict[str, float] | None = None
+        if build.flags["liftoff"]:
+            self._place_balance_rail()
+
+    def _pack(self) -> assembly.Packed:
+        build = self.build
+        packed = assembly.pack(build.params, liftoff=build.flags["liftoff"],
+                               flexible_shank=build.flags["flexible_shank"])
+        for (cid, col), value in build.contact_overrides.items():
+            packed.arrays[3][packed.contact_ids.index(cid), col] = value
+        return packed
 
     # -- construction from files ------------------------------------------------
     @classmethod
@@ -341,11 +357,15 @@ class ActionModel:
                            "rtol": getattr(self.integrator, "rtol", math.nan)},
             "coordinates": self.coordinates,
             "shank_first_mode_hz": self.packed.shank_first_mode_rad_s / (2 * math.pi),
+            **({"balance_rail": dict(self.balance_rail)} if self.balance_rail else {}),
         }
 
     @functools.cached_property
     def equations_key(self) -> bytes:
         """A digest of everything the equations of motion depend on (for caches)."""
+        return self._digest()
+
+    def _digest(self) -> bytes:
         h = hashlib.sha1()
         for a in self.packed.arrays:
             arr = np.ascontiguousarray(a)
@@ -387,37 +407,113 @@ class ActionModel:
         if self._rest is None and self.equations_key in _REST_CACHE:
             self._rest = _REST_CACHE[self.equations_key].copy()
         if self._rest is None:
-            y = self._table_state()
-            ws = self._workspace()
-            # settle dynamically (friction and damping remove the energy) ...
-            extra = self.extra_force()
-            integ = self.integrator if extra is not None else DormandPrince(rtol=1e-6,
-                                                                             max_step=1e-3)
-            adv = integ.advance(self.packed.arrays, ws, y, 0.0, 0.4, 1e-5, np.zeros(1),
-                                np.zeros(1), np.zeros(0), self.atol, extra)
-            y = adv.y.copy()
-            y[k.NQ : k.NY] = 0.0
-            # ... then polish: accelerations (and effect states' rates) = 0 at zero velocity
-            idx = np.r_[np.flatnonzero(self.active), np.arange(k.NY, self.n_state)]
-            dy = np.zeros(self.n_state)
-
-            def residual(x: np.ndarray) -> np.ndarray:
-                yy = y.copy()
-                yy[idx] = x
-                if extra is not None:
-                    ws[-1][:], dy[k.NY :] = extra(0.0, yy)
-                k.rhs(0.0, yy, 0.0, self.packed.arrays, ws, dy)
-                ws[-1][:] = 0.0
-                return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
-
-            sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
-                                x_scale=1e-3)
-            y[idx] = sol.x
-            self._rest = y
-            if len(_REST_CACHE) >= 256:
-                _REST_CACHE.clear()
-            _REST_CACHE[self.equations_key] = y.copy()
+            self._rest = self._polish(self._settle())
+            _remember(_REST_CACHE, self.equations_key, self._rest.copy())
         return self._rest.copy()
+
+    def _settle(self, arrays: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+        """The state after 0.4 s under gravity from Table 3.2 (friction and damping remove
+        the energy), velocities zeroed."""
+        extra = self.extra_force()
+        integ = self.integrator if extra is not None else DormandPrince(rtol=1e-6,
+                                                                         max_step=1e-3)
+        adv = integ.advance(arrays or self.packed.arrays, self._workspace(), self._table_state(),
+                            0.0, 0.4, 1e-5, np.zeros(1), np.zeros(1), np.zeros(0), self.atol,
+                            extra)
+        y = adv.y.copy()
+        y[k.NQ : k.NY] = 0.0
+        return y
+
+    def _polish(self, y: np.ndarray, arrays: tuple[np.ndarray, ...] | None = None,
+                active: np.ndarray | None = None) -> np.ndarray:
+        """Solve accelerations (and effect states' rates) = 0 at zero velocity from y."""
+        arrays = arrays or self.packed.arrays
+        active = self.active if active is None else active
+        ws = self._workspace()
+        extra = self.extra_force()
+        idx = np.r_[np.flatnonzero(active), np.arange(k.NY, self.n_state)]
+        dy = np.zeros(self.n_state)
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            yy = y.copy()
+            yy[idx] = x
+            if extra is not None:
+                ws[-1][:], dy[k.NY :] = extra(0.0, yy)
+            k.rhs(0.0, yy, 0.0, arrays, ws, dy)
+            ws[-1][:] = 0.0
+            return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
+
+        sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                            x_scale=1e-3)
+        out = y.copy()
+        out[idx] = sol.x
+        return out
+
+    def _place_balance_rail(self) -> None:
+        """Place the balance rail so that the key rests at the revolute key's height.
+
+        Thesis 4.2: the contact point on the ground was chosen so that the key is
+        at the same height at rest as with a revolute joint. The key pivot is put
+        at y0 (y_k = 0) with every body at the revolute model's rest, and contact
+        14's ground feature is moved vertically until the rail carries the key
+        there (under the model's own felt stiffness). The moved point is written
+        into the parameter set and recorded in ``balance_rail``.
+        """
+        ids = self.packed.contact_ids
+        if 14 not in ids:
+            return
+        row = ids.index(14)
+        spec = next(c for c in self.build.params.tree["contacts"] if int(c["id"]) == 14)
+        refs = (str(spec["first"]), str(spec["second"]))
+        sides = [i for i, ref in enumerate(refs) if ref.startswith("ground.")]
+        if not sides or not np.any(self.packed.arrays[3][row, [k.L_A, k.L_B, k.L_C]] > 0):
+            return  # no ground feature, or a rail without stiffness: nothing to place
+        side = sides[0]
+        key = self._digest()
+        if key not in _RAIL_CACHE:
+            _remember(_RAIL_CACHE, key, self._solve_rail(row, side))
+        offset, rest = _RAIL_CACHE[key]
+        solved = [a.copy() for a in self.packed.arrays]
+        solved[2][row, side, k.C_Y] += offset
+        path = f"points.{refs[side]}.at"
+        x, y = self.build.params.get(path)
+        self.build.params.set(path, [x, y + offset])
+        self.packed = self._pack()
+        self.balance_rail = {"y_m": float(self.packed.arrays[2][row, side, k.C_Y]),
+                             "offset_m": offset}
+        if all(np.array_equal(a, b) for a, b in zip(solved, self.packed.arrays, strict=True)):
+            self._rest = rest.copy()  # (else another contact shares the point: solve again)
+
+    def _solve_rail(self, row: int, side: int) -> tuple[float, np.ndarray]:
+        """(offset of contact 14's ground feature in m, rest state) with the pivot at y0."""
+        revolute = assembly.pack(self.build.params, liftoff=False,
+                                 flexible_shank=self.build.flags["flexible_shank"])
+        for (cid, col), value in self.build.contact_overrides.items():
+            revolute.arrays[3][revolute.contact_ids.index(cid), col] = value
+        fixed = self.active.copy()
+        fixed[k.QYK] = False
+        y = self._polish(self._settle(revolute.arrays), revolute.arrays, fixed)
+        y[k.QYK] = 0.0
+        arrays = tuple(a.copy() for a in self.packed.arrays)
+        base = float(arrays[2][row, side, k.C_Y])
+        ws, dy = self._workspace(), np.zeros(k.NY)
+        extra = self.extra_force()
+        q_force = extra(0.0, y)[0] if extra is not None else np.zeros(k.NQ)
+
+        def lift_acceleration(offset: float) -> float:
+            arrays[2][row, side, k.C_Y] = base + offset
+            ws[-1][:] = q_force
+            k.rhs(0.0, y[: k.NY], 0.0, arrays, ws, dy)
+            return float(dy[k.NQ + k.QYK])
+
+        # the rail pushes harder the higher it sits: 10 mm down the key hangs in the air
+        lo, hi = -0.01, 0.01
+        if not lift_acceleration(lo) < 0 < lift_acceleration(hi):
+            raise ValueError("contacts.14: the balance rail cannot hold the key at rest "
+                             "within 10 mm of its given height")
+        offset = float(brentq(lift_acceleration, lo, hi, xtol=1e-14, rtol=1e-12))
+        arrays[2][row, side, k.C_Y] = base + offset
+        return offset, self._polish(y, arrays)
 
     # -- simulation --------------------------------------------------------------------
     def stepper(self, y0: np.ndarray | None = None, t0: float = 0.0) -> Stepper:

@@ -199,7 +199,8 @@ class KeyLiftoff(Effect):
 
     name = "key_liftoff"
     summary = ("Key pivot on a massless body sliding vertically, resting on the balance rail "
-               "through contact 14; adds key_lift.")
+               "through contact 14, the rail placed so that the key rests at the revolute "
+               "key's height; adds key_lift.")
     parameters = (
         EffectParameter("damping", "s/m", 100.0, (0.0, 1000.0), True,
                         "damping factor D of contact 14", "contacts.14.D"),
@@ -222,6 +223,33 @@ class KeyLiftoff(Effect):
                 build.params.set(f"contacts.14.{coef}",
                                  build.params.get(f"contacts.14.{coef}") * scale)
         build.flags["liftoff"] = True
+
+
+@dataclass(frozen=True)
+class RailLift:
+    """How the key left its balance rail in a time window of a ``key_liftoff`` blow."""
+
+    height: float  # m: largest height of the key pivot above its rest (y0)
+    clearance: float  # m: height less the rail felt's compression at rest; > 0 = clear of it
+    airborne: float  # s: time the rail (contact 14) carried no force
+
+
+def rail_lift(result: SimResult, start: float = -math.inf, end: float = math.inf) -> RailLift:
+    """The key's lift off its balance rail between ``start`` and ``end`` (s) of a blow from
+    rest. The rail felt lets go as soon as it unloads faster than it recovers (Eq. 3.2
+    never pulls), so ``airborne`` can exceed zero while ``clearance`` is still negative."""
+    lift = result.channels.get("key_lift")
+    if lift is None:
+        raise ValueError("result: key_lift: the blow was simulated without key_liftoff")
+    t = result.time
+    w = (t >= start) & (t < end)
+    if not w.any():
+        raise ValueError(f"start, end: no samples between {start} and {end} s")
+    height = float(lift[w].max())
+    felt = float(result.contact("contact_penetration", 14)[0])
+    free = w & (result.contact("contact_force", 14) <= 0.0)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return RailLift(height, height - felt, float(free.sum()) * dt)
 
 
 def _uniform(time: np.ndarray, force: np.ndarray) -> float:
