@@ -324,3 +324,29 @@ def test_loop_cpu_not_on_this_machine_is_refused_before_anything_starts(tmp_path
     msg = str(info.value)
     assert msg.startswith(f"loop.cpu: CPU {bad} is not available") and "\n" not in msg
     assert not (tmp_path / "no.h5").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
+def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path) -> None:
+    """The drive monitor, the simulated drive and the command queue's feeder take the GIL: in
+    the normal class, one preempted while holding it holds the loop (docs/performance.md)."""
+    seen: dict[str, tuple[int, int]] = {}
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if not seen:
+            for th in threading.enumerate():
+                if th.native_id is not None:
+                    seen[th.name] = (os.sched_getscheduler(th.native_id),
+                                     os.sched_getparam(th.native_id).sched_priority)
+
+    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"realtime_priority": 7}),
+                  out=tmp_path / "rt.h5", on_cycle=hook)
+    assert rep.complete, rep.status
+    if not rep.lateness["realtime_priority"]:
+        pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
+    assert seen["MainThread"] == (os.SCHED_FIFO, 7)
+    for name in ("drive-monitor", "sim-drive", "QueueFeederThread"):
+        assert seen[name] == (os.SCHED_FIFO, 6), (name, seen)
+    after = {th.name: os.sched_getscheduler(th.native_id) for th in threading.enumerate()
+             if th.native_id is not None}
+    assert set(after.values()) == {os.SCHED_OTHER}, after

@@ -238,6 +238,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     old_switch = sys.getswitchinterval()
     realtime = False
     pinned: set[int] | None = None  # the CPUs the loop's thread could use before pinning
+    helpers: list[int] = []  # the run's other threads, raised with the loop
     try:
         if cfg.drive.port == "sim":
             from rig.sim_backend.daq import SimDaq
@@ -283,6 +284,13 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             if pinned is None:
                 say(f"loop.cpu: the OS refused to pin the loop to CPU {cpu}; running unpinned")
         realtime = pacing.realtime_priority(cfg.loop.realtime_priority)
+        if realtime:
+            # the run's other threads in this process (drive monitor, simulated drive, the command
+            # queue's feeder) take the GIL too: one preempted by another process while holding
+            # it would hold the loop for milliseconds, so they get the real-time class one below
+            helper_priority = max(1, cfg.loop.realtime_priority - 1)
+            helpers = [tid for tid in _helper_threads(monitor, sim_drive, ctrl)
+                       if pacing.realtime_priority(helper_priority, tid)]
         while True:
             tick = daq.wait_for_tick()
             i = tick.index
@@ -338,6 +346,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         _safe(lambda: daq.write_volts(0.0))
         if realtime:
             pacing.normal_priority()
+        for tid in helpers:
+            pacing.normal_priority(tid)
         if pinned is not None:
             pacing.set_cpus(pinned)
         sys.setswitchinterval(old_switch)
@@ -388,6 +398,17 @@ def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
         raise ValueError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
                          f"CPUs {pacing.cpu_list(cpus)})")
     return cpu
+
+
+def _helper_threads(*owners: Any) -> list[int]:
+    """Native ids of the live threads the run started in its own process (``owner._thread``:
+    the drive monitor, the simulated drive's server, a multiprocessing queue's feeder)."""
+    out = []
+    for owner in owners:
+        th = getattr(owner, "_thread", None)
+        if th is not None and th.is_alive() and th.native_id is not None:
+            out.append(int(th.native_id))
+    return out
 
 
 def daq_lockstep(daq: Daq) -> bool:
