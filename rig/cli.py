@@ -169,7 +169,8 @@ def run_profile(
                   f"{int(lat['late_cycles'])}, "
                   + (f"real-time priority {int(lat['realtime_priority'])}"
                      if lat.get("realtime_priority") else "normal scheduling (no real-time "
-                     "priority: see docs/running.md)"))
+                     "priority: see docs/running.md)")
+                  + (f", pinned to CPU {int(lat['cpu'])}" if lat.get("cpu", -1) >= 0 else ""))
     if report.samples is not None:
         _plain(f"acquisition: {report.samples} samples at "
                       f"{cfg.rates.acquisition_hz:g} Hz, no gap")

@@ -215,6 +215,9 @@ class Loop(_Strict):
     controller: str = Field("open_loop", description="open_loop, or module:Class of a controller")
     realtime_priority: int = Field(10, ge=0, le=99, description="SCHED_FIFO priority of the "
                                    "loop's thread where the OS permits it (0 = normal class)")
+    cpu: int | None = Field(None, ge=0, description="pin the loop's thread (only it) to this "
+                            "CPU (Linux; checked against the machine when the run starts; "
+                            "elsewhere ignored with a note); none = the OS chooses")
 
 
 class Acquisition(_Strict):

@@ -33,6 +33,8 @@ def test_builtin_sim_defaults() -> None:
     ("backend: sim\nchannels: {encoders: {k: {counter: c0, body: key, kind: angular}}}\n",
      "counts_per_rev"),
     ("backend: sim\nloop: {advnce_s: 0.01}\n", "loop.advnce_s"),
+    ("backend: sim\nloop: {cpu: -1}\n", "loop.cpu"),
+    ("backend: sim\nloop: {cpu: two}\n", "loop.cpu"),
     ("backend: sim\nacquisition: {flush_period_s: 2}\n", "acquisition.flush_period_s"),
     ("backend: sim\ndrive_scaling: {arm_length_m: zero}\n", "drive_scaling.arm_length_m"),
     ("- a list\n", "expected a mapping"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -247,3 +248,105 @@ def test_cli_first_and_last_lines(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     bad = CliRunner().invoke(app, ["run", str(FORTE), "--rig", str(tmp_path / "nope.yaml")])
     assert bad.exit_code == 2 and "file not found" in bad.output
+
+
+def _short_profile(tmp_path: Path) -> Path:
+    p = tmp_path / "short.yaml"
+    p.write_text("name: short\nsegments:\n  - {hold: 0.01}\n  - {ramp: 0.02, to: 5}\n"
+                 "  - {ramp: 0.02, to: 0}\n")
+    return p
+
+
+def _cpus_allowed(tid: int, pid: int | None = None) -> str:
+    where = f"/proc/{pid}/task/{tid}/status" if pid else f"/proc/self/task/{tid}/status"
+    text = Path(where).read_text()
+    return next(ln.split(":")[1].strip() for ln in text.splitlines()
+                if ln.startswith("Cpus_allowed_list"))
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
+def test_loop_cpu_pins_the_loop_thread_and_only_it(tmp_path: Path) -> None:
+    cpus = os.sched_getaffinity(0)
+    if len(cpus) < 2:
+        pytest.skip("one usable CPU: a pinned and an unpinned thread look the same")
+    cpu = max(cpus)
+    seen: list[tuple[int, frozenset[int]]] = []
+    others: dict[str, str] = {}
+
+    def hook(ctx: svc.CycleContext) -> None:
+        me = threading.get_native_id()
+        seen.append((me, frozenset(os.sched_getaffinity(0))))
+        if not others:  # the run's other threads and the acquisition process: not pinned
+            for tid in os.listdir("/proc/self/task"):
+                if int(tid) != me:
+                    others[f"thread {tid}"] = _cpus_allowed(int(tid))
+            others["acquisition"] = _cpus_allowed(ctx.acquisition_pid, ctx.acquisition_pid)
+
+    lines: list[str] = []
+    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"cpu": cpu}),
+                  out=tmp_path / "pinned.h5", on_cycle=hook, on_line=lines.append)
+    assert rep.complete, rep.status
+    assert len(seen) == rep.ticks and {a for _, a in seen} == {frozenset({cpu})}
+    assert len({t for t, _ in seen}) == 1
+    assert len(others) >= 2 and str(cpu) not in others.values(), others
+    assert os.sched_getaffinity(0) == cpus  # the caller's thread is unpinned after the run
+    assert rep.lateness["cpu"] == cpu
+    assert runfile.read(rep.path).metadata["loop_lateness"]["cpu"] == cpu
+    assert not any("loop.cpu" in ln for ln in lines)
+
+
+def test_loop_cpu_unsupported_is_said_once_and_runs_unpinned(tmp_path: Path,
+                                                             monkeypatch) -> None:
+    monkeypatch.setattr(svc.pacing, "usable_cpus", lambda: None)
+    before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    seen = []
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if before is not None:
+            seen.append(os.sched_getaffinity(0))
+
+    lines: list[str] = []
+    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"cpu": 0}),
+                  out=tmp_path / "unpinned.h5", on_cycle=hook, on_line=lines.append)
+    assert rep.complete and rep.lateness["cpu"] == -1
+    notes = [ln for ln in lines if "loop.cpu" in ln]
+    assert len(notes) == 1 and "unpinned" in notes[0], lines
+    assert all(s == before for s in seen)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
+def test_loop_cpu_not_on_this_machine_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    cpus = os.sched_getaffinity(0)
+    bad = next(c for c in range(max(cpus) + 2) if c not in cpus)
+    with pytest.raises(ValueError) as info:
+        svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"cpu": bad}),
+                out=tmp_path / "no.h5")
+    msg = str(info.value)
+    assert msg.startswith(f"loop.cpu: CPU {bad} is not available") and "\n" not in msg
+    assert not (tmp_path / "no.h5").exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
+def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path) -> None:
+    """The drive monitor, the simulated drive and the command queue's feeder take the GIL: in
+    the normal class, one preempted while holding it holds the loop (docs/performance.md)."""
+    seen: dict[str, tuple[int, int]] = {}
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if not seen:
+            for th in threading.enumerate():
+                if th.native_id is not None:
+                    seen[th.name] = (os.sched_getscheduler(th.native_id),
+                                     os.sched_getparam(th.native_id).sched_priority)
+
+    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"realtime_priority": 7}),
+                  out=tmp_path / "rt.h5", on_cycle=hook)
+    assert rep.complete, rep.status
+    if not rep.lateness["realtime_priority"]:
+        pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
+    assert seen["MainThread"] == (os.SCHED_FIFO, 7)
+    for name in ("drive-monitor", "sim-drive", "QueueFeederThread"):
+        assert seen[name] == (os.SCHED_FIFO, 6), (name, seen)
+    after = {th.name: os.sched_getscheduler(th.native_id) for th in threading.enumerate()
+             if th.native_id is not None}
+    assert set(after.values()) == {os.SCHED_OTHER}, after

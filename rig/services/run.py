@@ -220,6 +220,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
 
+    cpu = loop_cpu(cfg, say)
     daq = open_daq(cfg, lockstep=lockstep)
     sim_drive = None
     ctx = mp.get_context("spawn")
@@ -236,6 +237,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     old_handler: Any = None
     old_switch = sys.getswitchinterval()
     realtime = False
+    pinned: set[int] | None = None  # the CPUs the loop's thread could use before pinning
+    helpers: list[int] = []  # the run's other threads, raised with the loop
     try:
         if cfg.drive.port == "sim":
             from rig.sim_backend.daq import SimDaq
@@ -273,9 +276,21 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         gc.freeze()  # keep the collector out of the loop (it would scan these objects)
         gc.disable()
         # the loop's thread gets the GIL back quickly from the drive monitor's thread, and
-        # (where permitted) a real-time class so other processes cannot delay its ticks
+        # (where permitted) a real-time class so other processes cannot delay its ticks; with
+        # loop.cpu, this thread (only it) stays on that CPU
         sys.setswitchinterval(2e-4)
+        if cpu is not None:
+            pinned = pacing.pin_to_cpu(cpu)
+            if pinned is None:
+                say(f"loop.cpu: the OS refused to pin the loop to CPU {cpu}; running unpinned")
         realtime = pacing.realtime_priority(cfg.loop.realtime_priority)
+        if realtime:
+            # the run's other threads in this process (drive monitor, simulated drive, the command
+            # queue's feeder) take the GIL too: one preempted by another process while holding
+            # it would hold the loop for milliseconds, so they get the real-time class one below
+            helper_priority = max(1, cfg.loop.realtime_priority - 1)
+            helpers = [tid for tid in _helper_threads(monitor, sim_drive, ctrl)
+                       if pacing.realtime_priority(helper_priority, tid)]
         while True:
             tick = daq.wait_for_tick()
             i = tick.index
@@ -331,6 +346,10 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         _safe(lambda: daq.write_volts(0.0))
         if realtime:
             pacing.normal_priority()
+        for tid in helpers:
+            pacing.normal_priority(tid)
+        if pinned is not None:
+            pacing.set_cpus(pinned)
         sys.setswitchinterval(old_switch)
         gc.enable()
         gc.unfreeze()
@@ -345,6 +364,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     arr = np.array(rows, dtype=float).reshape(-1, 11)
     stats = lateness_stats(arr[:, 8], arr[:, 9], cfg.limits.late_threshold_s)
     stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
+    stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
     try:
         samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
                           (last_tick + 1) * spc, path, cfg)
@@ -361,6 +381,34 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         w.add_metadata("repeatability", rep)
         w.close(final)
     return RunReport(path, final, last_tick + 1, stats, samples, rep)
+
+
+def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
+    """The CPU to pin the loop's thread to (``loop.cpu``), checked against this machine before
+    anything starts (one-line ValueError); None = unpinned, said once where unsupported."""
+    cpu = cfg.loop.cpu
+    if cpu is None:
+        return None
+    cpus = pacing.usable_cpus()
+    if cpus is None:
+        say(f"loop.cpu: {cpu} ignored: this OS cannot pin a thread to a CPU; the loop runs "
+            "unpinned")
+        return None
+    if cpu not in cpus:
+        raise ValueError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
+                         f"CPUs {pacing.cpu_list(cpus)})")
+    return cpu
+
+
+def _helper_threads(*owners: Any) -> list[int]:
+    """Native ids of the live threads the run started in its own process (``owner._thread``:
+    the drive monitor, the simulated drive's server, a multiprocessing queue's feeder)."""
+    out = []
+    for owner in owners:
+        th = getattr(owner, "_thread", None)
+        if th is not None and th.is_alive() and th.native_id is not None:
+            out.append(int(th.native_id))
+    return out
 
 
 def daq_lockstep(daq: Daq) -> bool:
