@@ -438,9 +438,9 @@ class ActionModel:
             yy = y.copy()
             yy[idx] = x
             if extra is not None:
-                ws[-1][:], dy[k.NY :] = extra(0.0, yy)
+                ws[k.WS_EXTRA][:], dy[k.NY :] = extra(0.0, yy)
             k.rhs(0.0, yy, 0.0, arrays, ws, dy)
-            ws[-1][:] = 0.0
+            ws[k.WS_EXTRA][:] = 0.0
             return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
 
         sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
@@ -502,7 +502,7 @@ class ActionModel:
 
         def lift_acceleration(offset: float) -> float:
             arrays[2][row, side, k.C_Y] = base + offset
-            ws[-1][:] = q_force
+            ws[k.WS_EXTRA][:] = q_force
             k.rhs(0.0, y[: k.NY], 0.0, arrays, ws, dy)
             return float(dy[k.NQ + k.QYK])
 

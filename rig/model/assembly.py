@@ -172,7 +172,7 @@ def shank_first_mode(arrays: tuple[np.ndarray, ...], n_frames: int, params: Para
     ws = k.make_workspace(n_frames, arrays[2].shape[0])
     y = np.zeros(k.NY)
     y[k.QH] = params.get("initial_state.theta_h")
-    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx, _jb = ws
     k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays[1], org, phi, w, vO, JO, Jp, aO, al, cs)
     idx = [k.QH, k.QU1, k.QV1, k.QV2]
     mm = np.zeros((k.NQ, k.NQ))

@@ -353,7 +353,7 @@ class ScipyIntegrator:
         hint = np.zeros(1, dtype=np.int64)
         dy = np.empty_like(y0)
         counter = [0]
-        qx = ws[-1]
+        qx = ws[k.WS_EXTRA]
 
         def fun(t: float, y: np.ndarray) -> np.ndarray:
             counter[0] += 1

@@ -363,11 +363,12 @@ def normal_force_law(pen, pen_rate, law):
 
 
 @njit(cache=True, inline="always")
-def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full):
+def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, forces=True):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
     With ``full`` false, separated contacts get only their penetration (the
     integrator's fast path); with ``full`` true every output column is filled.
+    With ``forces`` false Q is left alone (sampled outputs need no dynamics).
     """
     for i in range(cl.shape[0]):
         if cl[i, L_ON] < 0.5:
@@ -395,7 +396,7 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full):
         if fn > 0.0 and cl[i, L_MU_A] > 0.0:
             mu = friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
             ft = -fn * mu
-        if fn > 0.0:
+        if fn > 0.0 and forces:
             fx = fn * nx + ft * tx
             fy = fn * ny + ft * ty
             _add_point_force(f2, px, py, fx, fy, org, JO, Jp, Q)
@@ -467,6 +468,10 @@ def _solve(M, b, x, lo, n):
         x[r] = acc / M[r, r]
 
 
+# position of the extra generalized forces in the workspace
+WS_EXTRA = 13
+
+
 def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
     """Scratch arrays for one evaluation (allocated once per integration)."""
     return (
@@ -484,11 +489,12 @@ def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
         np.zeros((n_contacts, N_CONTACT_OUT)),  # contact outputs
         np.zeros(NQ),  # qdd
         np.zeros(NQ),  # extra generalized forces (set by Python-level effects)
+        np.zeros((3, 4)),  # a shank particle's Jacobian columns (x, y, angle)
     )
 
 
 @njit(cache=True, inline="always")
-def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q):
+def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
     """Mass matrix, gravity and velocity-product terms of the flexible shank's Gauss
     particles (xi, mass, rotary inertia) on the hammer block.
 
@@ -505,9 +511,9 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q):
     dv2 = qd[QV2]
     dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
     sg = dx * ny - dy * nx
-    jx = np.empty(4)
-    jy = np.empty(4)
-    jp = np.empty(4)
+    jx = jb[0]
+    jy = jb[1]
+    jp = jb[2]
     for p in range(beam.shape[0]):
         xi = beam[p, 0]
         m = beam[p, 1]
@@ -554,7 +560,7 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q):
 def _inertia(q, qd, g, model, ws):
     """Kinematics, then M and Q with gravity and velocity-product terms (all bodies)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
-    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx, jb = ws
     kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     for a in range(NQ):
         Q[a] = 0.0
@@ -565,14 +571,14 @@ def _inertia(q, qd, g, model, ws):
         _mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
                       cs, w, JO, Jp, aO, al, M, Q)
     if sp[S_FLEX] > 0.5:
-        _shank_inertia(q, qd, sp, beam, g, cs[F_HAMMER, 0], cs[F_HAMMER, 1], M, Q)
+        _shank_inertia(q, qd, sp, beam, g, cs[F_HAMMER, 0], cs[F_HAMMER, 1], M, Q, jb)
 
 
 @njit(cache=True, inline="always")
 def accelerations(t, y, f_key, model, ws, full):
     """Generalized accelerations for state y under key force f_key (N, downward)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
-    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx, jb = ws
     q = y[:NQ]
     qd = y[NQ : 2 * NQ]
     _inertia(q, qd, sp[S_G], model, ws)
@@ -637,11 +643,11 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     contact] every contact's outputs (channel-major, so each channel is contiguous).
     """
     sp, sec_xi, cf, cl, jf, me, beam = model
-    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx, jb = ws
     for r in range(Y.shape[0]):
         y = Y[r]
         kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
-        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True)
+        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True, False)
         for i in range(cout.shape[0]):
             for j in range(N_CONTACT_OUT):
                 cout_all[j, r, i] = cout[i, j]
@@ -667,7 +673,7 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
 def energy(y, model, ws):
     """Kinetic, gravitational and elastic (shank) energy (J) of state y."""
     sp, sec_xi, cf, cl, jf, me, beam = model
-    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx = ws
+    org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, qx, jb = ws
     q = y[:NQ]
     qd = y[NQ : 2 * NQ]
     _inertia(q, qd, 0.0, model, ws)
