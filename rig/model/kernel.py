@@ -286,8 +286,13 @@ def contact_geometry(cf, i, org, phi, cs):
         a0 = cf[i, 0, C_A0]
         a1 = cf[i, 0, C_A1]
         mid = 0.5 * (a0 + a1)
-        beta = math.atan2(wy, wx) - phi[f1]
-        beta = mid + math.atan2(math.sin(beta - mid), math.cos(beta - mid))
+        # direction of the circle's centre in body 1, within pi of the arc's middle
+        off = math.atan2(wy, wx) - phi[f1] - mid
+        while off > math.pi:
+            off -= 2.0 * math.pi
+        while off < -math.pi:
+            off += 2.0 * math.pi
+        beta = mid + off
         if a0 <= beta <= a1:
             dist = math.sqrt(wx * wx + wy * wy)
             nx = wx / dist
@@ -552,8 +557,11 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
         jp[3] = sg * 3.0 * xi2
         for i in range(4):
             Q[QH + i] -= m * (jx[i] * ax + jy[i] * ay)
-            for j in range(4):
+            for j in range(i, 4):
                 M[QH + i, QH + j] += m * (jx[i] * jx[j] + jy[i] * jy[j]) + inertia * jp[i] * jp[j]
+    for i in range(1, 4):
+        for j in range(i):
+            M[QH + i, QH + j] = M[QH + j, QH + i]
 
 
 @njit(cache=True, inline="always")
