@@ -83,10 +83,13 @@ def _block(f):
 
 
 @njit(cache=True, inline="always")
-def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
-    """Frame k = cross-section of the shank at distance xi from its root."""
-    th = q[QH]
-    wh = qd[QH]
+def _shank_point(xi, q, qd, sp):
+    """Centre of the shank's cross-section at xi from the root, in the hammer frame.
+
+    Taylor shapes u = xi u1, v = xi^2 v1 + xi^3 v2, with the axial foreshortening
+    s(xi) that bending causes. Returns position (px, py), velocity relative to the
+    hammer (pdx, pdy), ds/dv1, ds/dv2 and the velocity-product term of s'' (quad).
+    """
     u1 = q[QU1]
     v1 = q[QV1]
     v2 = q[QV2]
@@ -94,7 +97,6 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
     dv1 = qd[QV1]
     dv2 = qd[QV2]
     dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
-    sg = dx * ny - dy * nx
     xi2 = xi * xi
     xi3 = xi2 * xi
     xi4 = xi3 * xi
@@ -106,16 +108,34 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
     b = xi2 * v1 + xi3 * v2
     px = sp[S_ROOTX] + dx * a + nx * b
     py = sp[S_ROOTY] + dy * a + ny * b
+    adot = xi * du1 - ds1 * dv1 - ds2 * dv2
+    bdot = xi2 * dv1 + xi3 * dv2
+    pdx = dx * adot + nx * bdot
+    pdy = dy * adot + ny * bdot
+    quad = (4.0 / 3.0) * xi3 * dv1 * dv1 + 3.0 * xi4 * dv1 * dv2 + 1.8 * xi5 * dv2 * dv2
+    return px, py, pdx, pdy, ds1, ds2, quad
+
+
+@njit(cache=True, inline="always")
+def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
+    """Frame k = cross-section of the shank at distance xi from its root."""
+    th = q[QH]
+    wh = qd[QH]
+    dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
+    sg = dx * ny - dy * nx
+    xi2 = xi * xi
+    xi3 = xi2 * xi
+    px, py, pdx, pdy, ds1, ds2, quad = _shank_point(xi, q, qd, sp)
     rpx = ch * px - sh * py
     rpy = sh * px + ch * py
     org[k, 0] = sp[S_PG3X] + rpx
     org[k, 1] = sp[S_PG3Y] + rpy
-    slope = 2.0 * xi * v1 + 3.0 * xi2 * v2
+    slope = 2.0 * xi * q[QV1] + 3.0 * xi2 * q[QV2]
     phi[k] = th + sg * slope
     if need_cs:
         cs[k, 0] = math.cos(phi[k])
         cs[k, 1] = math.sin(phi[k])
-    dslope = 2.0 * xi * dv1 + 3.0 * xi2 * dv2
+    dslope = 2.0 * xi * qd[QV1] + 3.0 * xi2 * qd[QV2]
     w[k] = wh + sg * dslope
     for j in range(QH, NQ):
         JO[k, 0, j] = 0.0
@@ -137,11 +157,8 @@ def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
         JO[k, 1, QV2] = -ey * ds2 + ty * xi3
         Jp[k, QV1] = sg * 2.0 * xi
         Jp[k, QV2] = sg * 3.0 * xi2
-        adot = xi * du1 - ds1 * dv1 - ds2 * dv2
-        bdot = xi2 * dv1 + xi3 * dv2
-        rdx = ex * adot + tx * bdot  # R pdot
-        rdy = ey * adot + ty * bdot
-        quad = (4.0 / 3.0) * xi3 * dv1 * dv1 + 3.0 * xi4 * dv1 * dv2 + 1.8 * xi5 * dv2 * dv2
+        rdx = ch * pdx - sh * pdy  # R pdot
+        rdy = sh * pdx + ch * pdy
         vO[k, 0] = -wh * rpy + rdx
         vO[k, 1] = wh * rpx + rdy
         aO[k, 0] = -wh * wh * rpx - 2.0 * wh * rdy - ex * quad
@@ -508,12 +525,6 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
     needs the hammer's angle (R^T y = (sin, cos)).
     """
     wh = qd[QH]
-    u1 = q[QU1]
-    v1 = q[QV1]
-    v2 = q[QV2]
-    du1 = qd[QU1]
-    dv1 = qd[QV1]
-    dv2 = qd[QV2]
     dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
     sg = dx * ny - dy * nx
     jx = jb[0]
@@ -525,20 +536,7 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
         inertia = beam[p, 2]
         xi2 = xi * xi
         xi3 = xi2 * xi
-        xi4 = xi3 * xi
-        xi5 = xi4 * xi
-        s_fore = (2.0 / 3.0) * xi3 * v1 * v1 + 1.5 * xi4 * v1 * v2 + 0.9 * xi5 * v2 * v2
-        ds1 = (4.0 / 3.0) * xi3 * v1 + 1.5 * xi4 * v2
-        ds2 = 1.5 * xi4 * v1 + 1.8 * xi5 * v2
-        a = xi * (1.0 + u1) - s_fore
-        b = xi2 * v1 + xi3 * v2
-        px = sp[S_ROOTX] + dx * a + nx * b
-        py = sp[S_ROOTY] + dy * a + ny * b
-        adot = xi * du1 - ds1 * dv1 - ds2 * dv2
-        bdot = xi2 * dv1 + xi3 * dv2
-        pdx = dx * adot + nx * bdot
-        pdy = dy * adot + ny * bdot
-        quad = (4.0 / 3.0) * xi3 * dv1 * dv1 + 3.0 * xi4 * dv1 * dv2 + 1.8 * xi5 * dv2 * dv2
+        px, py, pdx, pdy, ds1, ds2, quad = _shank_point(xi, q, qd, sp)
         # bias acceleration and gravity direction, hammer frame
         ax = -wh * wh * px - 2.0 * wh * pdy - dx * quad + g * sh
         ay = -wh * wh * py + 2.0 * wh * pdx - dy * quad + g * ch
