@@ -1,0 +1,108 @@
+"""Accuracy of the full model's default tolerances, and what limits its steps.
+
+    .venv/bin/python benchmarks/accuracy.py     # forte blow, about two minutes
+
+Runs the forte blow with the full model (flexible shank + key lift-off) at the
+default tolerances, with the shank's axial-rate tolerance set from its axial
+mode instead (a looser choice), and against a reference at rtol 1e-10 with
+every absolute tolerance / 1000. Prints each run's RHS calls and its largest and
+RMS error per channel against the reference (and the largest strain error per
+phase of the blow), then, for the default run, which state component's error
+set the step sizes in each phase and how the attempted steps split between
+explicit and implicit ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from rig.model.action import SimResult
+    from rig.profiles import Profile
+
+ROOT = Path(__file__).resolve().parents[1]
+EFFECTS = ["flexible_shank", "key_liftoff"]
+CHANNELS = ["shank_strain", "shank_tip_deflection", "hammer_angle", "whippen_angle",
+            "key_angle", "key_lift"]
+PHASES = [(0.0, 0.1, "descent and strike"), (0.1, 0.3, "held"), (0.3, 0.45, "release"),
+          (0.45, 0.6, "fall-back")]
+AXIAL_MODE = 3.3e4  # rad/s, the shank's 5.2 kHz axial mode
+
+
+def run(profile: Profile, rtol: float, atol_scale: dict[int, float] | None = None,
+        trace: bool = False) -> tuple[SimResult, np.ndarray, int]:
+    """The blow at rtol with absolute tolerances scaled; the step trace if asked."""
+    from rig.model.action import ActionModel
+    from rig.model.integrators_stiff import Rosenbrock
+
+    model = ActionModel(effects=EFFECTS)
+    num = model.params.tree["numerics"]
+    integ = Rosenbrock(rtol=rtol, max_step=num["max_step"])
+    model.integrator = integ
+    for i, f in (atol_scale or {}).items():
+        model.atol[i] *= f
+    rows: list[np.ndarray] = []
+    if trace:
+        advance = integ.advance
+
+        def traced(*a: Any, **kw: Any) -> Any:
+            integ._trace = np.zeros((200000, 5))
+            out = advance(*a, **kw)
+            rows.append(integ._trace[integ._trace[:, 1] > 0].copy())
+            return out
+
+        integ.advance = traced  # type: ignore[method-assign]
+    res = model.simulate(profile)
+    return res, (np.vstack(rows) if rows else np.zeros((0, 5))), integ.n_jac
+
+
+def main() -> None:
+    from rig import profiles
+    from rig.model import kernel as k
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--profile", default=str(ROOT / "profiles" / "forte.yaml"))
+    args = ap.parse_args()
+    profile = profiles.load(args.profile)
+    ref, _, _ = run(profile, 1e-10, {i: 1e-3 for i in range(2 * k.NQ)})
+    print(f"reference (rtol 1e-10, atol / 1000): {ref.stats['steps']:.0f} steps, "
+          f"strike {ref.events['strike'] * 1e3:.4f} ms at {ref.strike_speed:.5f} m/s")
+    variants = {"default tolerances": {},
+                "du1 rate x axial mode": {k.NQ + k.QU1: AXIAL_MODE / 2000.0}}
+    traced = None
+    for name, scale in variants.items():
+        res, rows, n_jac = run(profile, 1e-6, scale, trace=not scale)
+        if not scale:
+            traced = (rows, n_jac)
+        print(f"\n{name}: {res.stats['steps']:.0f} steps, {res.stats['rhs']:.0f} RHS calls; "
+              f"strike {abs(res.events['strike'] - ref.events['strike']) * 1e6:.2f} us off, "
+              f"speed {abs(res.strike_speed / ref.strike_speed - 1) * 100:.4f} % off")
+        for c in CHANNELS:
+            e = np.abs(res.channels[c] - ref.channels[c])
+            print(f"  {c:22s} max {e.max():.2e}  rms {np.sqrt(np.mean(e ** 2)):.2e}")
+        e = np.abs(res.channels["shank_strain"] - ref.channels["shank_strain"])
+        print("  largest strain error by phase: " + ", ".join(
+            f"{label} {e[(ref.time >= a) & (ref.time < b)].max():.1e}" for a, b, label in PHASES))
+    assert traced is not None
+    rows, n_jac = traced
+    names = ["key", "key_lift", "whippen", "jack", "repetition", "hammer", "u1", "v1", "v2"]
+    names += ["d" + n for n in names]
+    explicit = rows[:, 4] < 0
+    print(f"\ndefault run: {len(rows)} attempted steps, {explicit.sum()} explicit "
+          f"(Dormand-Prince, 6 RHS each), {(~explicit).sum()} implicit (ROS34PW2, 3-4 RHS "
+          f"each), {n_jac} Jacobians")
+    for a, b, label in PHASES:
+        sel = rows[(rows[:, 0] >= a) & (rows[:, 0] < b)]
+        ids, counts = np.unique(sel[:, 3].astype(int), return_counts=True)
+        order = np.argsort(-counts)[:3]
+        top = ", ".join(f"{names[ids[i]]} {counts[i] / len(sel) * 100:.0f} %" for i in order)
+        print(f"  {label:20s} {len(sel):5d} attempts ({(sel[:, 4] < 0).sum():4d} explicit); "
+              f"error set by: {top}")
+
+
+if __name__ == "__main__":
+    main()
