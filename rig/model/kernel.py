@@ -557,6 +557,7 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
             Q[QH + i] -= m * (jx[i] * ax + jy[i] * ay)
             for j in range(i, 4):
                 M[QH + i, QH + j] += m * (jx[i] * jx[j] + jy[i] * jy[j]) + inertia * jp[i] * jp[j]
+    # only the upper triangle got the particles; the rigid bodies' terms are symmetric
     for i in range(1, 4):
         for j in range(i):
             M[QH + i, QH + j] = M[QH + j, QH + i]
