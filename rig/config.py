@@ -241,6 +241,9 @@ class Sim(_Strict):
     strain_noise: float = Field(2e-6, ge=0, description="1 sigma, m/m")
     sensor_spread: float = Field(0.02, ge=0, description="relative 1-sigma spread of the true "
                                                          "sensitivities around nominal")
+    build_timeout_s: float = Field(600.0, gt=0, description="wait for the plant process to build "
+                                   "its model (the first use after installing or updating rig "
+                                   "compiles it: about a minute)")
 
 
 class RigConfig(_Strict):

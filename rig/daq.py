@@ -13,6 +13,7 @@ Acquisition side (its own process): open_reader(daq.reader_spec()) -> start()
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -83,8 +84,12 @@ class Reader(ABC):
         """Make the latest load-cell sample visible to the loop (NI); no-op by default."""
 
 
-def open_daq(config: RigConfig, *, lockstep: bool = False) -> Daq:
-    """The loop side for the configured backend (NI never falls back to simulation)."""
+def open_daq(config: RigConfig, *, lockstep: bool = False,
+             on_line: Callable[[str], None] | None = None) -> Daq:
+    """The loop side for the configured backend (NI never falls back to simulation).
+
+    ``on_line`` hears about slow starts (the simulated rig compiling its model).
+    """
     if config.backend == "ni":
         from rig.ni_daq import NiDaq
 
@@ -94,7 +99,7 @@ def open_daq(config: RigConfig, *, lockstep: bool = False) -> Daq:
     if config.backend == "sim":
         from rig.sim_backend.daq import SimDaq
 
-        return SimDaq(config, lockstep=lockstep)
+        return SimDaq(config, lockstep=lockstep, on_line=on_line)
     raise ValueError(f"backend: expected 'ni' or 'sim', got {config.backend!r}")
 
 

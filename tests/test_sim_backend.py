@@ -94,3 +94,35 @@ def test_fifo_detects_overwritten_samples() -> None:
     finally:
         r.close()
         w.close()
+
+
+def _realtime_cfg(**sections: dict) -> config.RigConfig:
+    data: dict[str, dict] = {"sim": {"realtime": True, "effects": []},
+                             "channels": {"strain_gauge": {"enabled": False}}}
+    for key, value in sections.items():
+        data.setdefault(key, {}).update(value)
+    return config.builtin_sim(**data)
+
+
+def test_plant_building_its_model_is_reported_and_waited_for(monkeypatch) -> None:
+    """Compiling the model on first use takes about a minute: the start must wait for
+    it (sim.build_timeout_s, not the acquisition's start timeout) and say why."""
+    from rig.sim_backend import daq as simdaq
+
+    monkeypatch.setattr(simdaq, "BUILD_NOTICE_S", 0.0)
+    lines: list[str] = []
+    cfg = _realtime_cfg(acquisition={"start_timeout_s": 0.01})
+    d = simdaq.SimDaq(cfg, on_line=lines.append)
+    try:
+        assert d.link is not None and d.link.ready
+    finally:
+        d.close()
+    assert len(lines) == 1 and "building the simulated rig's action model" in lines[0]
+
+
+def test_plant_build_timeout_names_its_setting() -> None:
+    from rig.daq import DaqFault
+    from rig.sim_backend.daq import SimDaq
+
+    with pytest.raises(DaqFault, match=r"did not start within 0.01 s \(sim.build_timeout_s\)"):
+        SimDaq(_realtime_cfg(sim={"build_timeout_s": 0.01}))

@@ -221,7 +221,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     }
 
     cpu = loop_cpu(cfg, say)
-    daq = open_daq(cfg, lockstep=lockstep)
+    daq = open_daq(cfg, lockstep=lockstep, on_line=say)
     sim_drive = None
     ctx = mp.get_context("spawn")
     ctrl: Any = ctx.Queue()

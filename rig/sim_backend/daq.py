@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -32,6 +33,7 @@ from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
 from rig.sim_backend.rig import DriveState, SimRig
 
 CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
+BUILD_NOTICE_S = 3.0  # s: a plant still building its model after this is reported (on_line)
 
 
 def row_width(config: RigConfig) -> int:
@@ -43,7 +45,8 @@ class SimDaq(Daq):
     """Loop side of the simulated rig."""
 
     def __init__(self, config: RigConfig, *, lockstep: bool = False,
-                 drive_state: DriveState | None = None, model: ActionModel | None = None) -> None:
+                 drive_state: DriveState | None = None, model: ActionModel | None = None,
+                 on_line: Callable[[str], None] | None = None) -> None:
         super().__init__(config)
         self.lockstep = lockstep or not config.sim.realtime
         spc = config.rates.samples_per_cycle
@@ -74,13 +77,20 @@ class SimDaq(Daq):
                 config.model_dump(mode="json"), self.link.spec, self.fifo.spec))
             plant.start()
             self.plant = plant
-            end = time.monotonic() + config.acquisition.start_timeout_s
+            t0 = time.monotonic()
+            told = on_line is None
             while not self.link.ready:
                 if self.link.error or not self.plant.is_alive():
                     raise DaqFault(self._plant_error() or "the simulated rig did not start")
-                if time.monotonic() > end:
+                waited = time.monotonic() - t0
+                if waited > config.sim.build_timeout_s:
                     raise DaqFault("the simulated rig did not start within "
-                                   f"{config.acquisition.start_timeout_s} s")
+                                   f"{config.sim.build_timeout_s} s (sim.build_timeout_s)")
+                if not told and waited > BUILD_NOTICE_S:
+                    assert on_line is not None
+                    on_line("building the simulated rig's action model (the first use after "
+                            "installing or updating rig compiles it: about a minute)")
+                    told = True
                 time.sleep(0.01)
         except BaseException:
             self.close()
