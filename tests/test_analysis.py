@@ -250,3 +250,35 @@ def test_measured_layout_with_time_before_the_profile(tmp_path: Path) -> None:
     comp = cp.compare(meas, [("m", ActionModel())])
     assert comp.models[0].errors["hammer_angle"].nrms < 1e-3
     assert math.isfinite(comp.events["strike"])
+
+
+def _cand(name: str, removal: float, significant: bool = True) -> dg.Candidate:
+    return dg.Candidate(name, "", {}, {}, {}, removal, {}, 10.0, significant)
+
+
+def test_an_effect_that_implies_another_is_credited_only_with_what_it_adds() -> None:
+    implies = {"key_encoder_misread": ("key_liftoff",)}
+    # a tie: the misread fits nothing lift-off alone does not explain; the simpler one wins
+    out = dg.rank([_cand("key_encoder_misread", 0.4965), _cand("compliant_string", 0.39),
+                   _cand("key_liftoff", 0.4960)], implies, 0.2)
+    assert [c.name for c in out] == ["key_liftoff", "key_encoder_misread", "compliant_string"]
+    assert "includes key_liftoff; removes 0.1 % of the error key_liftoff leaves" in out[1].note
+    assert out[1].note in out[1].describe()
+    # the misread removes most of what lift-off leaves: it stays first
+    out = dg.rank([_cand("key_liftoff", 0.5), _cand("key_encoder_misread", 0.9)], implies, 0.2)
+    assert [c.name for c in out] == ["key_encoder_misread", "key_liftoff"]
+    # lift-off already in the model (not a candidate): plain ranking, no note
+    out = dg.rank([_cand("key_encoder_misread", 0.3), _cand("backcheck_law", 0.6)], implies, 0.2)
+    assert [c.name for c in out] == ["backcheck_law", "key_encoder_misread"]
+    assert out[1].note == ""
+    # significance still comes first
+    out = dg.rank([_cand("a", 0.9, significant=False), _cand("b", 0.3)], {}, 0.2)
+    assert [c.name for c in out] == ["b", "a"]
+
+
+def test_library_effects_declare_what_they_imply() -> None:
+    from rig.model.effects import BUILTIN
+
+    assert BUILTIN["key_encoder_misread"].implies == ("key_liftoff",)
+    for cls in BUILTIN.values():
+        assert all(name in BUILTIN and name != cls.name for name in cls.implies)

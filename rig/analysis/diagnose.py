@@ -14,8 +14,10 @@ ranked by the share of the held-out error they remove (mean over channels of
 the mean square residual over the channel's range squared). An improvement is
 significant when it removes at least ``min_gain`` of that error and, on some
 channel, a mean square of at least ``min_noise_gain`` times the channel's
-noise variance (the removed part stands clear of the noise). Candidates are
-fitted in parallel, one process per core.
+noise variance (the removed part stands clear of the noise). A candidate that
+switches on another candidate (``Effect.implies``) ranks after it unless it
+removes ``min_gain`` of the error that one leaves. Candidates are fitted in
+parallel, one process per core.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ class Candidate:
     test_error: dict[str, float] = field(default_factory=dict)  # held-out MS / range^2
     nfev: int = 0
     error: str = ""                     # why the candidate could not be evaluated
+    note: str = ""                      # how it ranks against an effect it implies
 
     def describe(self) -> str:
         if self.error:
@@ -63,7 +66,30 @@ class Candidate:
             for k, v in self.values.items()) or "no fitted parameter"
         sig = "significant" if self.significant else "not significant"
         return (f"{self.name}: removes {self.removal * 100:.1f} % of the held-out error "
-                f"({sig}; {self.noise_gain:.1f} x noise variance); {vals}")
+                f"({sig}; {self.noise_gain:.1f} x noise variance); {vals}"
+                + (f"; {self.note}" if self.note else ""))
+
+
+def rank(candidates: list[Candidate], implies: Mapping[str, Sequence[str]],
+         min_gain: float) -> list[Candidate]:
+    """Candidates by held-out error removed, significant ones first; a candidate that
+    switches on another candidate (``implies``) goes after it unless it removes at least
+    ``min_gain`` of the error that one leaves (the simpler explanation wins a tie)."""
+    out = sorted(candidates, key=lambda c: (not c.significant, -c.removal))
+    by_name = {c.name: c for c in out if not c.error}
+    for a in list(out):
+        for b_name in implies.get(a.name, ()):
+            b = by_name.get(b_name)
+            if b is None or a.error:
+                continue
+            left = 1.0 - b.removal
+            extra = (a.removal - b.removal) / left if left > 0 else 0.0
+            a.note = (f"includes {b_name}; removes {extra * 100:.1f} % of the error "
+                      f"{b_name} leaves")
+            ia, ib = out.index(a), out.index(b)
+            if extra < min_gain and ia < ib:
+                out.insert(ib, out.pop(ia))
+    return out
 
 
 @dataclass
@@ -224,7 +250,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         _CTX.pop("diagnose", None)
         if pool is not None:
             pool.shutdown()
-    out.sort(key=lambda c: (not c.significant, -c.removal))
+    out = rank(out, {cls.name: cls.implies for cls in classes}, min_gain)
     tau = sg.common_shift(comp, comp.models[0], align_s)
     notes = [f"(signatures taken after shifting the model by {tau * 1e3:+.2f} ms as a whole; "
              f"at most +-{align_s * 1e3:.1f} ms)"]

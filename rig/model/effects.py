@@ -95,6 +95,9 @@ class Effect:
     parameters: ClassVar[tuple[EffectParameter, ...]] = ()
     signature: ClassVar[Signature] = Signature((), (), "shape")
     states: ClassVar[tuple[EffectState, ...]] = ()
+    # names of effects this one switches on as well (diagnose credits it only with
+    # what it adds beyond them)
+    implies: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.parameters}
@@ -337,6 +340,7 @@ class KeyEncoderMisread(Effect):
         ("key_angle",), ("check", "release"), "shape", None,
         "spikes in the measured key angle alone (the other encoders disagree) when the key "
         "bottoms and when it falls back on the rail")
+    implies = ("key_liftoff",)
 
     def apply(self, build: Build) -> None:
         super().apply(build)
