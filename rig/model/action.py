@@ -280,9 +280,11 @@ class ActionModel:
         if build.flags["liftoff"]:
             self._place_balance_rail()
 
-    def _pack(self) -> assembly.Packed:
+    def _pack(self, liftoff: bool | None = None) -> assembly.Packed:
+        """The build's arrays (with lift-off as built unless ``liftoff`` says otherwise)."""
         build = self.build
-        packed = assembly.pack(build.params, liftoff=build.flags["liftoff"],
+        packed = assembly.pack(build.params,
+                               liftoff=build.flags["liftoff"] if liftoff is None else liftoff,
                                flexible_shank=build.flags["flexible_shank"])
         for (cid, col), value in build.contact_overrides.items():
             packed.arrays[3][packed.contact_ids.index(cid), col] = value
@@ -486,10 +488,7 @@ class ActionModel:
 
     def _solve_rail(self, row: int, side: int) -> tuple[float, np.ndarray]:
         """(offset of contact 14's ground feature in m, rest state) with the pivot at y0."""
-        revolute = assembly.pack(self.build.params, liftoff=False,
-                                 flexible_shank=self.build.flags["flexible_shank"])
-        for (cid, col), value in self.build.contact_overrides.items():
-            revolute.arrays[3][revolute.contact_ids.index(cid), col] = value
+        revolute = self._pack(liftoff=False)
         fixed = self.active.copy()
         fixed[k.QYK] = False
         y = self._polish(self._settle(revolute.arrays), revolute.arrays, fixed)

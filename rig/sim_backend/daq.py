@@ -78,7 +78,7 @@ class SimDaq(Daq):
             plant.start()
             self.plant = plant
             t0 = time.monotonic()
-            told = on_line is None
+            told = False
             while not self.link.ready:
                 if self.link.error or not self.plant.is_alive():
                     raise DaqFault(self._plant_error() or "the simulated rig did not start")
@@ -86,8 +86,7 @@ class SimDaq(Daq):
                 if waited > config.sim.build_timeout_s:
                     raise DaqFault("the simulated rig did not start within "
                                    f"{config.sim.build_timeout_s} s (sim.build_timeout_s)")
-                if not told and waited > BUILD_NOTICE_S:
-                    assert on_line is not None
+                if on_line is not None and not told and waited > BUILD_NOTICE_S:
                     on_line("building the simulated rig's action model (the first use after "
                             "installing or updating rig compiles it: about a minute)")
                     told = True
