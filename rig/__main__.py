@@ -1,0 +1,5 @@
+"""``python -m rig``: the same command line as the ``rig`` script."""
+
+from rig.cli import app
+
+app(prog_name="rig")
