@@ -1,0 +1,21 @@
+"""The project's error classes: the user's bad input versus everything else.
+
+    RigError            root of every error rig raises on purpose
+      InputError        the user's bad input (a file, a field, an option): the CLI prints
+                        one line naming the file and field and exits 2; nothing is written
+
+``InputError`` is also a ``ValueError`` so callers that catch ``ValueError`` keep working
+while the code moves over to it. Raise it with the file and field in the message::
+
+    raise InputError(f"{path}: limits.max_force_n: must be positive, got {value}")
+"""
+
+from __future__ import annotations
+
+
+class RigError(Exception):
+    """Root of the errors rig raises on purpose."""
+
+
+class InputError(RigError, ValueError):
+    """The user's bad input: one line naming the file and field; exit 2, nothing written."""
