@@ -506,7 +506,9 @@ def synth_cmd(
                                              "built-in simulated rig with a key rotary encoder)")
                    ] = None,
     load_cell_filter: Annotated[bool, typer.Option(
-        help="pass the force through the load cell's 4-pole filter")] = True,
+        help="filter the recorded force again in the load cell (4-pole, 100 Hz): it then "
+             "lags the key force as on the real rig; the drive model already contains the "
+             "filter as the thesis measured it")] = False,
     noise_scale: Annotated[float, typer.Option(help="scale on the sensors' noise")] = 1.0,
     record_truth: Annotated[bool, typer.Option(
         help="store the truth model in the file's metadata (off: the analysis cannot peek)")

@@ -234,10 +234,14 @@ class Sim(_Strict):
     realtime: bool = True
     seed: int = 4
     effects: list[str] = Field(default_factory=lambda: ["flexible_shank"])
-    drive_model: Literal["rise_fall", "all"] = "rise_fall"
+    drive_model: Literal["single", "asymmetric", "step_size"] = Field(
+        "single", description="Appendix D drive model (rig.sim_backend.drive_model): single, "
+                              "asymmetric (rise/fall models) or step_size (slew-limited)")
     process_time_unit_s: float = Field(0.002, gt=0, description="unit of Tw and Tp3 (Appendix D)")
     load_cell_noise_n: float = Field(0.22, ge=0, description="1 sigma; 3 sigma = the 0.67 N spec")
-    load_cell_filter_hz: float = Field(100.0, gt=0)
+    load_cell_filter_hz: float | None = Field(
+        None, gt=0, description="a 4-pole filter in the simulated load cell; none: the 100 Hz "
+                                "filter is counted in the drive model, as the thesis identified it")
     strain_noise: float = Field(2e-6, ge=0, description="1 sigma, m/m")
     sensor_spread: float = Field(0.02, ge=0, description="relative 1-sigma spread of the true "
                                                          "sensitivities around nominal")

@@ -6,38 +6,10 @@ import numpy as np
 import pytest
 
 from rig import config, loadcell, strain
-from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
 from rig.sim_backend.sensors import SensorSet
 
 DT = 0.0005
-
-
-def ramp_response(variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    m = DriveModel(DT, variant)
-    t = np.arange(0, 0.2, 0.002)
-    u = np.clip((t - 0.02) / 0.03, 0, 1) * 30.0  # the forte ramp, held at 500 Hz
-    out = np.concatenate([m.step(float(ui), 4) for ui in u])
-    return np.arange(1, out.size + 1) * DT, np.repeat(u, 4), out
-
-
-def test_drive_model_lags_about_7_ms_and_settles_to_gain() -> None:
-    t, u, y = ramp_response("all")
-    assert y[-1] / 30.0 == pytest.approx(0.9322, rel=1e-3)
-    half_u = t[np.argmax(u >= 15.0)]
-    half_y = t[np.argmax(y >= 15.0 * 0.9322)]
-    assert 0.005 < half_y - half_u < 0.010  # the thesis's ~8 ms open-loop lag
-
-
-def test_drive_model_rise_and_fall_differ() -> None:
-    m1, m2 = DriveModel(DT, "rise_fall"), DriveModel(DT, "all")
-    for m in (m1, m2):
-        m.step(20.0, 200)
-    f1, f2 = m1.step(0.0, 40), m2.step(0.0, 40)
-    assert not np.allclose(f1, f2, atol=0.05)  # the decreasing model is slower (Tw 7.6)
-    assert f1[-1] > f2[-1]
-    with pytest.raises(ValueError, match="variant"):
-        DriveModel(DT, "both")
 
 
 def test_sensor_models_differ_from_nominal_and_are_seeded() -> None:
@@ -51,7 +23,9 @@ def test_sensor_models_differ_from_nominal_and_are_seeded() -> None:
 
 
 def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
-    cfg = config.builtin_sim()
+    # the built-in rig counts the 100 Hz filter in the drive model; set here, the load cell
+    # filters on top (what rig synth --load-cell-filter does)
+    cfg = config.builtin_sim(sim={"load_cell_filter_hz": 100.0})
     lc = SensorSet.from_config(cfg).load_cell
     f = np.r_[np.zeros(200), np.full(4000, 20.0)]
     n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
@@ -61,6 +35,14 @@ def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
     assert 3 * settled.std() < 0.8  # the spec's 0.67 N max error
     # 100 Hz 4-pole Butterworth: ~4.2 ms group delay (about 8-9 samples at 2 kHz)
     assert 7 <= np.argmax(n > 10.0) - 200 <= 11
+
+
+def test_the_built_in_load_cell_does_not_filter_again() -> None:
+    lc = SensorSet.from_config(config.builtin_sim(sim={"load_cell_noise_n": 0.0})).load_cell
+    assert lc.filter_hz is None
+    f = np.r_[np.zeros(200), np.full(50, 20.0)]
+    n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
+    assert n == pytest.approx(f, abs=1e-9)  # the force as the drive model gives it
 
 
 def test_strain_formula_round_trip_and_size() -> None:

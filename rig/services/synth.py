@@ -13,7 +13,7 @@ from rig.model.action import ActionModel
 
 def synth(model_file: Path, profile_files: Sequence[Path], out: Path, *, seed: int = 0,
           trials: int = 1, duration: float | None = None, rig: Path | None = None,
-          load_cell_filter: bool = True, noise_scale: float = 1.0,
+          load_cell_filter: bool = False, noise_scale: float = 1.0,
           record_truth: bool = False) -> list[sy.SynthTrial]:
     """Synthesize ``trials`` blows of each profile through the simulated rig's chain."""
     truth = ActionModel.from_yaml(model_file)

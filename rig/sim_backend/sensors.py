@@ -24,28 +24,33 @@ from rig.config import RigConfig
 
 @dataclass
 class LoadCellModel:
-    """Full-bridge load cell + SCXI-1520 4-pole Butterworth filter + noise."""
+    """Full-bridge load cell + noise, and a 4-pole Butterworth filter when ``filter_hz``
+    is set. The simulated rig leaves it None: its drive model already contains the
+    SCXI-1520's 100 Hz filter (rig.sim_backend.drive_model), so it is counted once."""
 
     sensitivity: float          # true (V/V)/N
     offset: float               # true V/V at zero force
     noise_n: float              # 1-sigma noise, N equivalent
-    filter_hz: float
+    filter_hz: float | None     # Hz; None: no filter in the sensor chain
     rate_hz: float
     rng: np.random.Generator
-    _sos: np.ndarray = field(init=False, repr=False)
-    _zi: np.ndarray = field(init=False, repr=False)
+    _sos: np.ndarray | None = field(init=False, repr=False)
+    _zi: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._sos = signal.butter(4, self.filter_hz, fs=self.rate_hz, output="sos")
+        self._sos = None if self.filter_hz is None else signal.butter(
+            4, self.filter_hz, fs=self.rate_hz, output="sos")
         self.reset()
 
     def reset(self, force_n: float = 0.0) -> None:
         """Filter state settled at a constant force."""
-        self._zi = signal.sosfilt_zi(self._sos) * force_n
+        self._zi = None if self._sos is None else signal.sosfilt_zi(self._sos) * force_n
 
     def measure(self, force_n: np.ndarray) -> np.ndarray:
-        """Bridge ratio (V/V) read for true forces sampled at rate_hz."""
-        filtered, self._zi = signal.sosfilt(self._sos, np.asarray(force_n, float), zi=self._zi)
+        """Bridge ratio (V/V) read for true forces (N) sampled at rate_hz."""
+        filtered = np.asarray(force_n, float)
+        if self._sos is not None:
+            filtered, self._zi = signal.sosfilt(self._sos, filtered, zi=self._zi)
         noisy = filtered + self.rng.normal(0.0, self.noise_n, filtered.shape)
         return self.offset + self.sensitivity * noisy
 
