@@ -1,4 +1,4 @@
-"""Force profiles: the force pressing the key top over time.
+"""Force profiles: the force pressing the key top over time (and motion profiles).
 
 A profile file is YAML with exactly one of three forms of the curve:
 
@@ -9,10 +9,17 @@ A profile file is YAML with exactly one of three forms of the curve:
     csv: measured-force.csv # two columns time_s, force_N (header optional),
                             # path relative to the YAML file
 
-plus optional ``name`` and ``description``. A bare ``.csv`` file is accepted
-too. Between points the force is linear. Everything is checked on load:
-times must increase, values must be finite, forces must lie in
+plus optional ``name``, ``description`` and ``kind``. A bare ``.csv`` file is
+accepted too. Between points the force is linear. Everything is checked on
+load: times must increase, values must be finite, forces must lie in
 [0, limit], and unknown keys are refused.
+
+``kind: motion`` makes the curve a *displacement* (m, downward) of the
+fingertip's last bone instead of a force, from where the fingertip pulp just
+touches the key top at rest (negative: above it). Only the model plays it,
+through the ``fingertip`` effect (thesis Section 3.8); ``load`` refuses it
+unless the caller accepts it (``kinds``), so a motion file cannot be sent to the
+rig's force loop by mistake.
 """
 
 from __future__ import annotations
@@ -29,18 +36,22 @@ import numpy as np
 from rig.params import load_yaml_file
 
 DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
-_KEYS = {"name", "description", "segments", "points", "csv"}
+_KEYS = {"name", "description", "segments", "points", "csv", "kind"}
+KINDS = ("force", "motion")
+MOTION_LIMIT_M = 0.05  # a fingertip bone travel beyond 50 mm either way is not a key press
 
 
 @dataclass(frozen=True)
 class Profile:
-    """A validated force profile: knots (s, N), linear in between."""
+    """A validated profile: knots (s, N), linear in between; for ``kind="motion"`` the
+    values in ``force`` are the fingertip bone's displacement (m, downward)."""
 
     time: np.ndarray
     force: np.ndarray
     name: str = "profile"
     description: str = ""
     source: str = ""
+    kind: str = "force"
 
     @property
     def duration(self) -> float:
@@ -55,7 +66,10 @@ class Profile:
         return np.interp(t, self.time, self.force)
 
     def to_metadata(self) -> dict[str, Any]:
-        return {"name": self.name, "description": self.description, "source": self.source}
+        meta = {"name": self.name, "description": self.description, "source": self.source}
+        if self.kind != "force":
+            meta["kind"] = self.kind
+        return meta
 
 
 def _fail(source: str, field: str, expected: str) -> ValueError:
@@ -158,8 +172,37 @@ def _read_csv(path: Path, source: str) -> list[list[Any]]:
     return rows
 
 
-def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profile:
-    """Load and validate a profile file (YAML or CSV)."""
+def motion_from_points(points: Sequence[Sequence[Any]], *, name: str = "motion",
+                       description: str = "", source: str = "profile") -> Profile:
+    """A motion profile from (time s, displacement m) pairs of the fingertip's last bone."""
+    if len(points) < 2:
+        raise _fail(source, "points", "expected at least two (time, displacement) pairs")
+    t = np.empty(len(points))
+    x = np.empty(len(points))
+    for i, pair in enumerate(points):
+        if not isinstance(pair, Sequence) or isinstance(pair, str) or len(pair) != 2:
+            raise _fail(source, f"points[{i}]", f"expected [time_s, displacement_m], got "
+                        f"{pair!r}")
+        t[i] = _number(pair[0], source, f"points[{i}] time")
+        x[i] = _number(pair[1], source, f"points[{i}] displacement")
+    if t[0] < 0:
+        raise _fail(source, "points[0] time", f"expected >= 0 s, got {t[0]}")
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise _fail(source, f"points[{i}] time",
+                    f"expected time to increase, got {t[i]} s after {t[i - 1]} s")
+    far = np.flatnonzero(np.abs(x) > MOTION_LIMIT_M)
+    if far.size:
+        i = int(far[0])
+        raise _fail(source, f"points[{i}] displacement", f"expected within +-{MOTION_LIMIT_M} m "
+                    f"(metres, not mm), got {x[i]}")
+    return Profile(t, x, name, description, source, "motion")
+
+
+def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N,
+         kinds: Sequence[str] = ("force",)) -> Profile:
+    """Load and validate a profile file (YAML or CSV) of one of ``kinds``."""
     p = Path(path)
     if p.suffix.lower() == ".csv":
         return from_points(_read_csv(p, str(p)), name=p.stem, source=str(p),
@@ -175,6 +218,13 @@ def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profil
         raise ValueError(f"{p}: expected exactly one of segments, points or csv, got {forms}")
     name = str(data.get("name", p.stem))
     desc = str(data.get("description", ""))
+    kind = data.get("kind", "force")
+    if kind not in KINDS:
+        raise _fail(str(p), "kind", f"expected one of {', '.join(KINDS)}, got {kind!r}")
+    if kind not in kinds:
+        raise _fail(str(p), "kind", f"{kind}: this command needs a {' or '.join(kinds)} "
+                    f"profile (a motion profile drives the model only: rig simulate PROFILE "
+                    f"-e fingertip)")
     if forms[0] == "segments":
         pts: Sequence[Sequence[Any]] = _from_segments(data["segments"], str(p))
     elif forms[0] == "points":
@@ -183,4 +233,6 @@ def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profil
         pts = data["points"]
     else:
         pts = _read_csv(p.parent / str(data["csv"]), str(p))
+    if kind == "motion":
+        return motion_from_points(pts, name=name, description=desc, source=str(p))
     return from_points(pts, name=name, description=desc, source=str(p), force_limit=force_limit)

@@ -151,7 +151,7 @@ def candidates_for(base: ActionModel, names: Sequence[str] | None = None,
     """Library effects not in the model (or the named ones), plus extra classes."""
     have = set(base.effect_names)
     if names is None:
-        pool = [cls for n, cls in BUILTIN.items() if n not in have]
+        pool = [cls for n, cls in BUILTIN.items() if n not in have and cls.diagnosable]
     else:
         pool = []
         for n in names:

@@ -527,6 +527,7 @@ class ActionModel:
         duration = profile.duration if duration is None else float(duration)
         if not duration > 0:
             raise ValueError(f"duration: expected a positive time in s, got {duration}")
+        profile = self._input_profile(profile)
         ft, ff = self.input_force(profile)
         step = self.stepper(y0)
         wall0 = _time.perf_counter()
@@ -544,6 +545,21 @@ class ActionModel:
         res.stats["simulated_time_s"] = t
         res.metadata["profile"] = profile.to_metadata()
         return res
+
+    def _input_profile(self, profile: _profiles.Profile) -> _profiles.Profile:
+        """A force profile as it is; a motion profile goes to the effect that plays it
+        (fingertip) and the key force from the table is zero."""
+        movers = [e for e in self.effects if hasattr(e, "drive_by_motion")]
+        if getattr(profile, "kind", "force") != "motion":
+            for e in movers:
+                e.drive_by_motion(self, None)
+            return profile
+        if not movers:
+            raise ValueError(f"{profile.source}: kind: motion needs the fingertip effect "
+                             f"(-e fingertip)")
+        movers[0].drive_by_motion(self, profile)
+        return _profiles.Profile(profile.time, np.zeros_like(profile.force), profile.name,
+                                 profile.description, profile.source, "motion")
 
     def input_force(self, profile: _profiles.Profile,
                     resolution: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:

@@ -98,6 +98,8 @@ class Effect:
     # names of effects this one switches on as well (diagnose credits it only with
     # what it adds beyond them)
     implies: ClassVar[tuple[str, ...]] = ()
+    # False for input models (fingertip): diagnose does not propose them
+    diagnosable: ClassVar[bool] = True
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.parameters}
@@ -439,6 +441,11 @@ class CompliantString(Effect):
 BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (
     FlexibleShank, KeyLiftoff, DriveDynamics, LoadCellFilter, KeyEncoderMisread, BackcheckLaw,
     FeltHysteresis, CompliantString)}
+
+
+from rig.model.fingertip import Fingertip  # noqa: E402  (it subclasses Effect)
+
+BUILTIN[Fingertip.name] = Fingertip
 
 
 def register(cls: type[Effect]) -> type[Effect]:

@@ -32,7 +32,7 @@ def simulate(profile_file: Path, out: Path, model: ActionModel, *,
              on_stage: Callable[[str], None] | None = None,
              progress: Callable[[float, float], None] | None = None) -> SimResult:
     """Simulate the profile and write the run file ``out``."""
-    profile = profiles.load(profile_file, force_limit=force_limit)
+    profile = profiles.load(profile_file, force_limit=force_limit, kinds=profiles.KINDS)
     if on_stage:
         on_stage("finding the rest state")
     model.rest_state()
