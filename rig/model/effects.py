@@ -443,9 +443,7 @@ BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (
     FeltHysteresis, CompliantString)}
 
 
-from rig.model.fingertip import Fingertip  # noqa: E402  (it subclasses Effect)
-
-BUILTIN[Fingertip.name] = Fingertip
+import rig.model.fingertip  # noqa: E402,F401  (registers the fingertip effect in BUILTIN)
 
 
 def register(cls: type[Effect]) -> type[Effect]:

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from rig.model.effects import Effect, EffectParameter, EffectState, Signature
+from rig.model.effects import BUILTIN, Effect, EffectParameter, EffectState, Signature
 
 if TYPE_CHECKING:
     from rig import profiles
@@ -219,6 +219,9 @@ class Fingertip(Effect):
         out = super().describe()
         out["input"] = "motion" if self._motion is not None else "none"
         return out
+
+
+BUILTIN[Fingertip.name] = Fingertip
 
 
 def result_states(result: SimResult) -> np.ndarray | None:
