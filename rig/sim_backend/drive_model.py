@@ -13,16 +13,17 @@ split -- a plant before the filter, then the filter in the load cell -- is not
 what the thesis identified and cannot be recovered from it: a third-order plant
 fitted so that plant x filter matches G misses G's 10 N step by up to 9 % of
 the step, and the exact inverse (G / filter, made proper by four poles at
-2 kHz) asks the motor for 45 % of the step within 0.2 ms (measured in the
-analysis behind docs/model.md, "The simulated drive"). The price: the simulated
-key feels the force as the load cell reports it, not ~4 ms earlier as on the
-real rig (the recorded force does not lag the key force; ``rig synth
---load-cell-filter`` adds that lag on the sensor side when a test needs it).
+2 kHz) asks the motor for 45 % of the step within 0.2 ms (measured with
+``python benchmarks/fidelity_drive.py --split``; docs/running.md, "The
+simulated drive"). The price: the simulated key feels the force as the load
+cell reports it, not ~4 ms earlier as on the real rig (the recorded force does
+not lag the key force; ``rig synth --load-cell-filter`` adds that lag on the
+sensor side when a test needs it).
 
 Units of Tw and Tp3: the thesis prints them without units. Read as 2 ms sample
 periods (the 500 Hz loop, ``sim.process_time_unit_s``), the single model lags a
 ramp by (2 zeta Tw + Tp3) x 2 ms = 6.86 ms (plus 1 ms for the 500 Hz hold), is
-best aligned with the forte demand by a ~7.5 ms shift, and settles to 2 % of a
+best aligned with the forte demand by a 7.9 ms shift, and settles to 2 % of a
 10 N step in ~28 ms: the thesis's ~8 ms (with the filter) and ~25 ms. Read as
 milliseconds it would lag 3.4 ms and settle in 14 ms, half the measured figures
 although the filter is already inside G.
@@ -37,7 +38,7 @@ Variants (``sim.drive_model``):
   prediction "discouraging" and found no gain over the single model; it is
   here for robustness tests (a drive much slower on release).
 * ``step_size``: the single model whose first-order (current) stage cannot
-  change faster than a 10 N step makes it change (10 N / Tp3 = 2.2 kN/s):
+  change faster than a 10 N step makes it change (K x 10 N / Tp3 = 2.0 kN/s):
   steps up to 10 N (the size G was identified on) respond exactly as
   ``single``; larger steps rise and fall slew-limited, so the response's
   shape changes with the step's size, as Fig. D.2 shows for the real drive.
