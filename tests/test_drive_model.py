@@ -142,3 +142,25 @@ def test_the_fidelity_rows_of_the_drive_and_fingertip_hold() -> None:
     # the asymmetric variant is the slow drive the issue measured: its rows fail
     assert not all(r["ok"] for r in mod.rows("asymmetric")[:3])
     assert "| drive lag" in mod.table(rows)
+
+
+def test_synth_records_the_key_force_unless_asked_to_filter_again() -> None:
+    """rig synth's record is the drive model's force (the filter is inside it); with
+    load_cell_filter the 100 Hz 4-pole filter acts once more and the record lags the key
+    force by its group delay, 2.6131 / (2 pi 100 Hz) = 4.16 ms."""
+    from rig.analysis import synth
+    from rig.model.action import ActionModel
+
+    prof = profiles.load(FORTE)
+    cfg = synth.default_rig()
+    quiet = {"rng_seed": 1, "duration": 0.08, "noise_scale": 0.0}
+    plain = synth.synth_trial(ActionModel(), prof, cfg, load_cell_filter=False, **quiet)
+    again = synth.synth_trial(ActionModel(), prof, cfg, load_cell_filter=True, **quiet)
+    key = plain.truth.channels["force"]
+    t = plain.channels["time"]
+    assert plain.channels["force"] == pytest.approx(key, abs=1e-6)
+    ramp = (t > 0.04) & (t < 0.07)   # the forte ramp at the key (375 N/s x the drive's K)
+    slope = np.polyfit(t[ramp], key[ramp], 1)[0]
+    assert slope == pytest.approx(375.0 * SINGLE["K"], rel=5e-3)
+    lag = np.mean(key[ramp] - again.channels["force"][ramp]) / slope
+    assert lag == pytest.approx(2.6131 / (2 * np.pi * 100.0), abs=2e-4)
