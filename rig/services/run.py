@@ -190,7 +190,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     say = on_line or (lambda s: None)
     if trials < 1:
         raise ValueError(f"trials: expected at least 1, got {trials}")
-    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
+                            max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
     if cfg.backend == "ni" and cfg.drive.port == "sim":
         raise ValueError("drive.port: 'sim' (the simulated drive) needs backend: sim")
