@@ -314,3 +314,15 @@ def test_analysis_commands_warn_on_an_aborted_run(tmp_path: Path, command: list[
     complete = _run_file(tmp_path, "complete")
     r = CliRunner().invoke(app, [a.format(run=complete, model=model) for a in command])
     assert "warning:" not in r.stderr
+
+
+def test_a_controller_module_that_fails_to_import_gives_one_line(tmp_path: Path,
+                                                                 monkeypatch) -> None:
+    write(tmp_path, "x = 1 / 0\n", "my_ctl_broken.py")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    rig = write(tmp_path, f"backend: sim\ndrive: {{port: sim}}\ndata_folder: {tmp_path / 'r'}\n"
+                          "loop: {controller: 'my_ctl_broken:Ctl'}\n", "rig.yaml")
+    r = CliRunner().invoke(app, ["run", str(FORTE), "--rig", str(rig)])
+    _one_error_line(r, "error: loop.controller: cannot load 'my_ctl_broken:Ctl' "
+                       "(ZeroDivisionError: division by zero)")
+    assert not (tmp_path / "r").exists()
