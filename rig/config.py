@@ -35,6 +35,7 @@ RESERVED_CHANNELS = frozenset({
     "tick", "target", "feedforward", "demand", "volts", "limited", "measured_force",
     "lateness", "missed", "pace_volts"})
 MAX_DRIVE_POLL_PERIOD_S = 0.1  # a slower drive poll would see a drive fault too late
+MAX_CONFIG_BYTES = 1_000_000  # a rig config is a few kB; a larger file is refused unread
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -352,7 +353,7 @@ def from_mapping(data: Any, source: str = "rig config") -> RigConfig:
 
 def load(path: str | Path) -> RigConfig:
     """Load and validate a rig YAML file."""
-    return from_mapping(load_yaml_file(path), str(path))
+    return from_mapping(load_yaml_file(path, MAX_CONFIG_BYTES), str(path))
 
 
 def builtin_sim(**overrides: Any) -> RigConfig:

@@ -326,3 +326,11 @@ def test_a_controller_module_that_fails_to_import_gives_one_line(tmp_path: Path,
     _one_error_line(r, "error: loop.controller: cannot load 'my_ctl_broken:Ctl' "
                        "(ZeroDivisionError: division by zero)")
     assert not (tmp_path / "r").exists()
+
+
+def test_an_oversized_rig_config_is_refused_unread(tmp_path: Path) -> None:
+    path = tmp_path / "rig.yaml"
+    path.write_text("backend: sim\n" + "# padding\n" * 200_000)
+    with pytest.raises(InputError, match=f"^{path}: file is \\d+ bytes, more than the "
+                                         f"{config.MAX_CONFIG_BYTES} allowed$"):
+        config.load(path)
