@@ -299,6 +299,8 @@ def test_status_warning_says_aborted_or_running(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("command", [
     ["compare", "{run}", "--duration", "0.02"],
+    ["diagnose", "{run}", "--candidate", "compliant_string", "--jobs", "1", "--duration",
+     "0.02"],
     ["fit", "{run}", "--param", "compliant_string.stiffness", "--model", "{model}", "--jobs",
      "1", "--max-nfev", "2", "--duration", "0.02"],
 ])
