@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel
 
@@ -50,9 +50,17 @@ def _numeric_paths(model: type[BaseModel], prefix: tuple[str, ...] = ()
     return out
 
 
+def _annotation(path: tuple[str, ...]) -> Any:
+    model: Any = RigConfig
+    for name in path[:-1]:
+        model = model.model_fields[name].annotation
+    return model.model_fields[path[-1]].annotation
+
+
 PATHS = _numeric_paths(RigConfig)
+NUMBER_PATHS = [p for p in PATHS if _annotation(p) in (float, int, float | None, int | None)]
 NUMBERS = st.one_of(
-    st.integers(-3, 3), st.integers(-10**30, 10**30), st.just(10**400),
+    st.floats(0.001, 1), st.floats(0.001, 1), st.integers(1, 100), st.integers(-3, 3), st.integers(-10**30, 10**30), st.just(10**400),
     st.floats(allow_nan=True, allow_infinity=True),
     st.sampled_from([0.0, -0.0, 1e-300, 1e300, 0.05, 0.1, 0.1000001, 2.0, 10.0, 500.0]),
     st.booleans(), st.text(max_size=4), st.none(), st.lists(st.integers(0, 3), max_size=2))
@@ -69,10 +77,13 @@ def _set(tree: dict[str, Any], path: tuple[str, ...], value: Any) -> None:
 
 @st.composite
 def rig_mappings(draw: st.DrawFn) -> Any:
-    data: dict[str, Any] = {"backend": draw(st.sampled_from(["sim", "sim", "ni", "labview", 1]))}
+    data: dict[str, Any] = {"backend": draw(st.sampled_from(["sim"] * 4 + ["ni"] * 2 +
+                                                            ["labview", 1]))}
     if draw(st.integers(0, 9)) == 0:
         del data["backend"]  # a missing required field
-    for path, value in draw(st.lists(st.tuples(st.sampled_from(PATHS), NUMBERS), max_size=4)):
+    paths = st.one_of(st.sampled_from(NUMBER_PATHS), st.sampled_from(NUMBER_PATHS),
+                      st.sampled_from(PATHS))  # mostly the numbers, any field now and then
+    for path, value in draw(st.lists(st.tuples(paths, NUMBERS), max_size=3)):
         _set(data, path, value)
     if draw(st.integers(0, 9)) == 0:  # an extra field somewhere
         _set(data, draw(st.sampled_from(PATHS))[:-1] + ("extra_field",), 1)
@@ -132,24 +143,30 @@ def test_every_rig_config_is_refused_in_one_line_or_safe(folder: Path, data: Any
         cfg = config.load(path)
     except Exception as exc:  # noqa: BLE001 - the property: only a one-line ValueError
         _refused_in_one_line(exc, path)
+        event("refused")
         return
+    event("accepted")
     _assert_safe(cfg)
 
 
 # ---- profiles ----
-SEG_NUMBERS = st.one_of(st.floats(-1, 100), st.floats(allow_nan=True, allow_infinity=True),
+ODD_NUMBERS = st.one_of(st.floats(-1, 100), st.floats(allow_nan=True, allow_infinity=True),
                         st.integers(-5, 10**7), st.just(10**400), st.booleans(),
                         st.text(max_size=3), st.sampled_from([1.0e6, 59.9, 60.0, 60.1, 0.0]))
+# mostly plausible durations and forces (so that many profiles are accepted and checked),
+# the odd number about every eighth draw
+SEG_NUMBERS = st.one_of(*[st.floats(0.001, 20), st.floats(0, 30), st.integers(1, 30)] * 3,
+                        ODD_NUMBERS)
 
 
 @st.composite
 def yaml_profiles(draw: st.DrawFn) -> Any:
-    form = draw(st.sampled_from(["segments", "points", "both", "other"]))
+    form = draw(st.sampled_from(["segments", "segments", "points", "points", "both", "other"]))
     data: dict[str, Any] = {}
     if form in ("segments", "both"):
         segs = []
         for _ in range(draw(st.integers(0, 5))):
-            kind = draw(st.sampled_from(["hold", "ramp", "start", "bad"]))
+            kind = draw(st.sampled_from(["hold", "ramp"] * 4 + ["start", "bad"]))
             if kind == "hold":
                 segs.append({"hold": draw(SEG_NUMBERS)})
             elif kind == "ramp":
@@ -160,12 +177,20 @@ def yaml_profiles(draw: st.DrawFn) -> Any:
                 segs.append({"hold": 0.1, "to": 3})
         data["segments"] = segs
     if form in ("points", "both"):
-        data["points"] = draw(st.lists(st.lists(SEG_NUMBERS, min_size=1, max_size=3),
-                                       max_size=6))
+        if draw(st.booleans()):  # time increasing by construction
+            steps = draw(st.lists(st.tuples(st.floats(0.001, 20), SEG_NUMBERS), max_size=6))
+            t, pts = 0.0, [[0, 0]]
+            for dt, f in steps:
+                t += dt
+                pts.append([t, f])
+            data["points"] = pts
+        else:
+            data["points"] = draw(st.lists(st.lists(SEG_NUMBERS, min_size=1, max_size=3),
+                                           max_size=6))
     if form == "other":
         data[draw(st.sampled_from(["speed", "name", "csv"]))] = draw(SEG_NUMBERS)
     if draw(st.booleans()):
-        data["name"] = draw(st.one_of(st.text(max_size=5), SEG_NUMBERS))
+        data["name"] = draw(st.one_of(st.text(max_size=5), ODD_NUMBERS))
     return data
 
 
@@ -177,17 +202,19 @@ CELLS = st.one_of(st.sampled_from(["0", "0.01", "1e6", "60.5", "-1", "nan", "inf
 @st.composite
 def csv_profiles(draw: st.DrawFn) -> str:
     lines = []
-    header = draw(st.sampled_from([None, "time_s,force_N", "force_N,time_s", "t,f",
-                                   " Time_S , force_n", "time_s,time_s", "time_s,force_N,x"]))
+    header = draw(st.sampled_from([None, "time_s,force_N", "force_N,time_s"] * 3 + [
+        "t,f", " Time_S , force_n", "time_s,time_s", "time_s,force_N,x"]))
     if header:
         lines.append(header)
     t = 0.0
     for _ in range(draw(st.integers(0, 6))):
-        if draw(st.integers(0, 3)) == 0:
+        if draw(st.integers(0, 7)) == 0:
             lines.append(",".join(draw(st.lists(CELLS, min_size=1, max_size=3))))
         else:
-            t += draw(st.floats(0.001, 20))
-            lines.append(f"{t!r},{draw(st.floats(0, 150))!r}")
+            t += draw(st.floats(0.001, 12))
+            f = draw(st.floats(0, 130))
+            lines.append(f"{f!r},{t!r}" if header and header.startswith("force") else
+                         f"{t!r},{f!r}")
     return "\n".join(lines) + "\n"
 
 
@@ -211,7 +238,9 @@ def test_every_yaml_profile_is_refused_in_one_line_or_finite(folder: Path, data:
         p = profiles.load(path, force_limit=limit, max_duration=MAX_S)
     except Exception as exc:  # noqa: BLE001
         _refused_in_one_line(exc, path)
+        event("refused")
         return
+    event("accepted")
     _assert_profile_safe(p, limit)
 
 
@@ -224,7 +253,9 @@ def test_every_csv_profile_is_refused_in_one_line_or_finite(folder: Path, text: 
         p = profiles.load(path, max_duration=MAX_S)
     except Exception as exc:  # noqa: BLE001
         _refused_in_one_line(exc, path)
+        event("refused")
         return
+    event("accepted")
     _assert_profile_safe(p, profiles.DEFAULT_FORCE_LIMIT_N)
     # a header naming the columns is honoured: force_N first means force is column 0
     first = text.splitlines()[0].replace(" ", "").lower()
