@@ -68,8 +68,8 @@ class Profile:
 
 
 def _fail(source: str, field: str, expected: str) -> InputError:
-    text = f"{source}: {field}: {expected}"
-    return InputError(" ".join(text.splitlines()) if "\n" in text or "\r" in text else text)
+    """One line naming the file and field (a quoted value's line breaks become spaces)."""
+    return InputError(" ".join(f"{source}: {field}: {expected}".splitlines()))
 
 
 def _number(value: Any, source: str, field: str) -> float:
