@@ -215,7 +215,7 @@ class Limits(_Strict):
 
     max_force_n: float = Field(50.0, gt=0, le=120, description="pianists stay under 50 N")
     max_rate_n_per_s: float = Field(5000.0, gt=0, le=1e6)
-    max_late_cycles_in_a_row: int = Field(5, ge=1, le=1000)
+    max_late_cycles_in_a_row: int = Field(5, ge=1, le=1_000_000)
     late_threshold_s: float = Field(0.001, gt=0, le=0.1,
                                     description="a cycle writing later than this "
                                                              "after its tick is late")
