@@ -377,6 +377,16 @@ def _analysis_progress(bar: Progress, task: object) -> Callable[[float, float, s
     return update
 
 
+def _warn_unfinished(runs: list[Path]) -> None:
+    """One line on stderr for each run file that is aborted or still running."""
+    from rig.analysis.measurement import status_warning
+
+    for path in runs:
+        text = status_warning(path)
+        if text:
+            err.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
 def _bar() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
                     TimeElapsedColumn(), console=err, transient=True)
@@ -401,6 +411,7 @@ def compare_cmd(
     from rig.analysis import compare as cp
     from rig.services import compare as svc
 
+    _warn_unfinished([run])
     try:
         with _bar() as bar:
             bar.add_task("simulating the models against the run", total=None, sim="")
@@ -438,6 +449,7 @@ def diagnose_cmd(
     """Where the model fails, and which library effect removes the residual."""
     from rig.services import diagnose as svc
 
+    _warn_unfinished([run])
     try:
         with _bar() as bar:
             task = bar.add_task("fitting candidate effects", total=None, sim="")
@@ -476,6 +488,7 @@ def fit_cmd(
     """Fit model or effect parameters to one or many runs (scipy least squares)."""
     from rig.services import fit as svc
 
+    _warn_unfinished(runs)
     try:
         with _bar() as bar:
             task = bar.add_task("fitting", total=None, sim="")

@@ -12,6 +12,7 @@ names carry the unit where it is not obvious.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any, Literal
 
@@ -19,19 +20,43 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rig.calibration.settings import CalibrationSettings
+from rig.errors import InputError
 from rig.params import load_yaml_file
+
+# Strict numbers (no bool, no numeric text) that must be finite: ``control_hz: true`` or
+# ``buffer_s: .inf`` are refused rather than read as 1 Hz or an endless buffer.
+_STRICT_FINITE = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+# The run's own channel names (rig/acquisition.py, rig/calrecords.py, rig/runfile.py): an
+# encoder channel named like one of them would replace the load-cell force, the sample
+# counter or the time base in the run file and blind the analysis and the safety checks.
+RESERVED_CHANNELS = frozenset({
+    "time", "sample", "force", "load_cell_ratio", "strain_ratio", "shank_strain",
+    "tick", "target", "feedforward", "demand", "volts", "limited", "measured_force",
+    "lateness", "missed", "pace_volts"})
+MAX_DRIVE_POLL_PERIOD_S = 0.1  # a slower drive poll would see a drive fault too late
+MAX_CONFIG_BYTES = 1_000_000  # a rig config is a few kB; a larger file is refused unread
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = _STRICT_FINITE
 
 
 class DriveOutput(_Strict):
     """Analog output (PCI-6229) carrying the torque demand to the drive."""
 
     physical_channel: str = "Dev1/ao0"
-    min_volts: float = -10.0
-    max_volts: float = 10.0
+    min_volts: float = Field(-10.0, ge=-10, le=0, description="lower clamp of the output "
+                             "(V); <= 0 so that zero demand writes exactly 0 V")
+    max_volts: float = Field(10.0, gt=0, le=10, description="upper clamp of the output (V)")
+
+    @model_validator(mode="after")
+    def _range(self) -> DriveOutput:
+        if not self.min_volts < self.max_volts:
+            raise ValueError(f"min_volts: expected less than max_volts ({self.max_volts:g} V), "
+                             f"got {self.min_volts:g} V")
+        return self
 
 
 class Pacing(_Strict):
@@ -53,10 +78,12 @@ class LoadCell(_Strict):
 
     physical_channel: str = "SC1Mod1/ai0"
     excitation_volts: float = Field(5.0, gt=0, le=10)
-    bridge_resistance_ohm: float = Field(350.0, gt=0)
-    rated_output_mv_per_v: float = Field(2.0, gt=0, description="bridge output at full scale")
-    full_scale_n: float = Field(111.0, gt=0)
-    input_range_mv_per_v: float = Field(3.0, gt=0, description="+- range of the card channel")
+    bridge_resistance_ohm: float = Field(350.0, gt=0, le=1e6)
+    rated_output_mv_per_v: float = Field(2.0, gt=0, le=100,
+                                         description="bridge output at full scale")
+    full_scale_n: float = Field(111.0, gt=0, le=1e5)
+    input_range_mv_per_v: float = Field(3.0, gt=0, le=1000,
+                                        description="+- range of the card channel")
 
 
 class StrainGauge(_Strict):
@@ -65,10 +92,10 @@ class StrainGauge(_Strict):
     enabled: bool = True
     physical_channel: str = "SC1Mod1/ai1"
     excitation_volts: float = Field(2.5, gt=0, le=10)
-    gage_factor: float = Field(2.0, gt=0)
-    nominal_resistance_ohm: float = Field(350.0, gt=0)
-    lead_wire_resistance_ohm: float = Field(0.0, ge=0)
-    input_range_mv_per_v: float = Field(2.0, gt=0)
+    gage_factor: float = Field(2.0, gt=0, le=1000)
+    nominal_resistance_ohm: float = Field(350.0, gt=0, le=1e6)
+    lead_wire_resistance_ohm: float = Field(0.0, ge=0, le=1e6)
+    input_range_mv_per_v: float = Field(2.0, gt=0, le=1000)
 
 
 class Encoder(_Strict):
@@ -77,12 +104,21 @@ class Encoder(_Strict):
     counter: str
     body: Literal["key", "whippen", "hammer", "jack", "repetition"]
     kind: Literal["angular", "linear"]
-    counts_per_rev: float | None = Field(None, gt=0, description="after x4 decoding (angular)")
-    metres_per_count: float | None = Field(None, gt=0, description="after x4 decoding (linear)")
+    counts_per_rev: float | None = Field(None, gt=0, le=1e12,
+                                         description="after x4 decoding (angular)")
+    metres_per_count: float | None = Field(None, gt=0, le=1,
+                                           description="after x4 decoding (linear)")
     sign: Literal[1, -1] = 1
     initial_value: float = Field(0.0, description="rad or m at count 0 (the pose at start)")
     channel: str = Field("", description="calibrated channel name; default <body>_angle or "
                                          "key_dip / <body>_travel")
+
+    @field_validator("sign", mode="before")
+    @classmethod
+    def _no_bool_sign(cls, v: Any) -> Any:
+        if isinstance(v, bool):
+            raise ValueError(f"expected 1 or -1, got {v}")
+        return v
 
     @model_validator(mode="after")
     def _resolution(self) -> Encoder:
@@ -140,7 +176,18 @@ class Channels(_Strict):
     def _three(cls, v: dict[str, Encoder]) -> dict[str, Encoder]:
         if not v:
             raise ValueError("expected at least one encoder")
-        names = [e.channel_name for e in v.values()]
+        for key, enc in v.items():
+            if not _NAME.fullmatch(key):
+                raise ValueError(f"{key!r}: expected an encoder name of letters, digits and _")
+            if not _NAME.fullmatch(enc.channel_name):
+                raise ValueError(f"channel {enc.channel_name!r} of encoder {key}: expected a "
+                                 f"name of letters, digits and _")
+            for own in (enc.channel_name, f"{key}_counts"):
+                if own in RESERVED_CHANNELS:
+                    raise ValueError(f"encoder {key} would write channel {own!r}, one of the "
+                                     f"run's own channels (reserved: "
+                                     f"{', '.join(sorted(RESERVED_CHANNELS))})")
+        names = [e.channel_name for e in v.values()] + [f"{k}_counts" for k in v]
         if len(set(names)) != len(names):
             raise ValueError(f"two encoders write the same channel: {names}")
         return v
@@ -154,9 +201,9 @@ class DriveScaling(_Strict):
     set them from the motor's and drive's plates.
     """
 
-    arm_length_m: float = Field(0.100, gt=0)
-    torque_constant_nm_per_a: float = Field(2.0, gt=0)
-    volts_per_amp: float = Field(10.0 / 6.0, gt=0)
+    arm_length_m: float = Field(0.100, gt=0, le=10)
+    torque_constant_nm_per_a: float = Field(2.0, gt=0, le=1000)
+    volts_per_amp: float = Field(10.0 / 6.0, gt=0, le=1000)
 
     @property
     def volts_per_newton(self) -> float:
@@ -167,18 +214,21 @@ class Limits(_Strict):
     """Safety limits applied to every demand and checked on every profile."""
 
     max_force_n: float = Field(50.0, gt=0, le=120, description="pianists stay under 50 N")
-    max_rate_n_per_s: float = Field(5000.0, gt=0)
-    max_late_cycles_in_a_row: int = Field(5, ge=1)
-    late_threshold_s: float = Field(0.001, gt=0, description="a cycle writing later than this "
+    max_rate_n_per_s: float = Field(5000.0, gt=0, le=1e6)
+    max_late_cycles_in_a_row: int = Field(5, ge=1, le=1_000_000)
+    late_threshold_s: float = Field(0.001, gt=0, le=0.1,
+                                    description="a cycle writing later than this "
                                                              "after its tick is late")
+    max_profile_s: float = Field(60.0, gt=0, le=3600, description="longest profile a run or "
+                                 "simulation accepts (s); longer ones are refused on load")
 
 
 class DriveLink(_Strict):
     """Serial link to the Kollmorgen ServoStar CE drive; the command set is configurable."""
 
     port: str = Field("/dev/ttyS0", description="serial device; 'sim' = simulated drive on a pty")
-    baudrate: int = Field(9600, gt=0)
-    timeout_s: float = Field(0.5, gt=0)
+    baudrate: int = Field(9600, gt=0, le=10_000_000)
+    timeout_s: float = Field(0.5, gt=0, le=10)
     prompt: str = "-->"
     enable: str = "EN"
     disable: str = "DIS"
@@ -188,12 +238,13 @@ class DriveLink(_Strict):
     fault: str = "ERRCODE"
     no_fault: str = "0"
     setup: list[str] = Field(default_factory=list, description="sent once before enabling")
-    poll_period_s: float = Field(0.05, gt=0)
+    poll_period_s: float = Field(0.05, gt=0, le=MAX_DRIVE_POLL_PERIOD_S,
+                                 description="a slower poll would see a drive fault too late")
 
 
 class Rates(_Strict):
-    control_hz: float = Field(500.0, gt=0)
-    acquisition_hz: float = Field(2000.0, gt=0)
+    control_hz: float = Field(500.0, ge=10, le=10_000)
+    acquisition_hz: float = Field(2000.0, ge=10, le=250_000)
 
     @model_validator(mode="after")
     def _ratio(self) -> Rates:
@@ -210,8 +261,8 @@ class Rates(_Strict):
 class Loop(_Strict):
     advance_s: float = Field(0.008, ge=0, le=0.1, description="demand leads the profile by this "
                                                               "(open-loop lag compensation)")
-    rest_s: float = Field(1.0, ge=0, description="rest between trials")
-    settle_s: float = Field(0.1, ge=0, description="zero demand recorded before each trial")
+    rest_s: float = Field(1.0, ge=0, le=3600, description="rest between trials")
+    settle_s: float = Field(0.1, ge=0, le=60, description="zero demand recorded before each trial")
     controller: str = Field("open_loop", description="open_loop, or module:Class of a controller")
     realtime_priority: int = Field(10, ge=0, le=99, description="SCHED_FIFO priority of the "
                                    "loop's thread where the OS permits it (0 = normal class)")
@@ -224,8 +275,9 @@ class Acquisition(_Strict):
     read_period_s: float = Field(0.02, gt=0, le=0.5)
     flush_period_s: float = Field(0.25, gt=0, le=0.5, description="at most 0.5 s: flushed at "
                                                                   "least twice a second")
-    buffer_s: float = Field(2.0, gt=0, description="card input buffer / simulated FIFO length")
-    start_timeout_s: float = Field(60.0, gt=0)
+    buffer_s: float = Field(2.0, ge=0.1, le=60,
+                            description="card input buffer / simulated FIFO length")
+    start_timeout_s: float = Field(60.0, gt=0, le=3600)
 
 
 class Sim(_Strict):
@@ -237,15 +289,20 @@ class Sim(_Strict):
     drive_model: Literal["single", "asymmetric", "step_size"] = Field(
         "single", description="Appendix D drive model (rig.sim_backend.drive_model): single, "
                               "asymmetric (rise/fall models) or step_size (slew-limited)")
-    process_time_unit_s: float = Field(0.002, gt=0, description="unit of Tw and Tp3 (Appendix D)")
-    load_cell_noise_n: float = Field(0.22, ge=0, description="1 sigma; 3 sigma = the 0.67 N spec")
+    process_time_unit_s: float = Field(0.002, gt=0, le=1,
+                                       description="unit of Tw and Tp3 (Appendix D)")
+    load_cell_noise_n: float = Field(0.22, ge=0, le=100,
+                                     description="1 sigma; 3 sigma = the 0.67 N spec")
     load_cell_filter_hz: float | None = Field(
-        None, gt=0, description="a 4-pole filter in the simulated load cell; none: the 100 Hz "
-                                "filter is counted in the drive model, as the thesis identified it")
-    strain_noise: float = Field(2e-6, ge=0, description="1 sigma, m/m")
-    sensor_spread: float = Field(0.02, ge=0, description="relative 1-sigma spread of the true "
+        None, gt=0, le=1e5, description="a 4-pole filter in the simulated load cell; none: the "
+                                        "100 Hz filter is counted in the drive model, as the "
+                                        "thesis identified it")
+    strain_noise: float = Field(2e-6, ge=0, le=1, description="1 sigma, m/m")
+    sensor_spread: float = Field(0.02, ge=0, le=0.5,
+                                 description="relative 1-sigma spread of the true "
                                                          "sensitivities around nominal")
-    build_timeout_s: float = Field(600.0, gt=0, description="wait for the plant process to build "
+    build_timeout_s: float = Field(600.0, gt=0, le=7200,
+                                   description="wait for the plant process to build "
                                    "its model (the first use after installing or updating rig "
                                    "compiles it: about a minute)")
 
@@ -262,7 +319,7 @@ class RigConfig(_Strict):
     rates: Rates = Rates()
     loop: Loop = Loop()
     acquisition: Acquisition = Acquisition()
-    data_folder: Path = Path("runs")
+    data_folder: Path = Field(Path("runs"), strict=False)
     sim: Sim = Sim()
     calibration: CalibrationSettings = CalibrationSettings()
 
@@ -270,7 +327,7 @@ class RigConfig(_Strict):
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
 
 
-def _one_line(source: str, exc: ValidationError) -> ValueError:
+def _one_line(source: str, exc: ValidationError) -> InputError:
     err = exc.errors()[0]
     where = ".".join(str(p) for p in err["loc"]) or "(top level)"
     msg = err["msg"].removeprefix("Value error, ")
@@ -280,13 +337,19 @@ def _one_line(source: str, exc: ValidationError) -> ValueError:
     if sep and head.isidentifier():  # a model validator naming its field
         where, msg = f"{where}.{head}" if err["loc"] else head, rest
     extra = f" (and {len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
-    return ValueError(f"{source}: {where}: {msg}{extra}")
+    return InputError(one_line(f"{source}: {where}: {msg}{extra}"))
+
+
+def one_line(text: str) -> str:
+    """``text`` on one line (a value quoted from the user's file may hold line breaks)."""
+    return " ".join(text.split("\n")).replace("\r", " ")
 
 
 def from_mapping(data: Any, source: str = "rig config") -> RigConfig:
     """Validate a mapping as a rig configuration (one-line ValueError naming the field)."""
     if not isinstance(data, dict):
-        raise ValueError(f"{source}: expected a mapping of rig settings, got {type(data).__name__}")
+        raise InputError(f"{source}: expected a mapping of rig settings, got "
+                         f"{type(data).__name__}")
     try:
         return RigConfig.model_validate(data)
     except ValidationError as exc:
@@ -295,7 +358,7 @@ def from_mapping(data: Any, source: str = "rig config") -> RigConfig:
 
 def load(path: str | Path) -> RigConfig:
     """Load and validate a rig YAML file."""
-    return from_mapping(load_yaml_file(path), str(path))
+    return from_mapping(load_yaml_file(path, MAX_CONFIG_BYTES), str(path))
 
 
 def builtin_sim(**overrides: Any) -> RigConfig:

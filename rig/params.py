@@ -30,15 +30,39 @@ def _load_yaml_text(text: str, source: str) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"{source}:{where} is not valid YAML ({exc.__class__.__name__})") from None
+        from rig.errors import InputError
+
+        raise InputError(f"{source}:{where} is not valid YAML ({exc.__class__.__name__})") from None
+    except RecursionError:
+        from rig.errors import InputError
+
+        raise InputError(f"{source}: nested too deeply to read as YAML") from None
 
 
-def load_yaml_file(path: str | Path) -> Any:
-    """Read a YAML file, raising a one-line ``ValueError`` naming it on failure."""
+def read_text_file(path: str | Path, max_bytes: int | None = None) -> str:
+    """A UTF-8 text file's content; a one-line ``InputError`` naming it when it is missing,
+    larger than ``max_bytes``, unreadable or not UTF-8."""
+    from rig.errors import InputError
+
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{p}: file not found")
-    return _load_yaml_text(p.read_text(encoding="utf-8"), str(p))
+        raise InputError(f"{p}: file not found")
+    try:
+        size = p.stat().st_size
+        if max_bytes is not None and size > max_bytes:
+            raise InputError(f"{p}: file is {size} bytes, more than the {max_bytes} allowed")
+        return p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{p}: not a UTF-8 text file (byte {exc.start} cannot be "
+                         f"decoded)") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror or exc})") from None
+
+
+def load_yaml_file(path: str | Path, max_bytes: int | None = None) -> Any:
+    """Read a YAML file, raising a one-line ``ValueError`` naming it on failure."""
+    p = Path(path)
+    return _load_yaml_text(read_text_file(p, max_bytes), str(p))
 
 
 def _defaults() -> dict[str, Any]:

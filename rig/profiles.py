@@ -6,13 +6,17 @@ A profile file is YAML with exactly one of three forms of the curve:
       - {hold: 0.02}          # stay at the current force for 0.02 s
       - {ramp: 0.03, to: 30}  # go linearly to 30 N in 0.03 s
     points: [[0, 0], [0.03, 30], ...]   # a table of (time s, force N)
-    csv: measured-force.csv # two columns time_s, force_N (header optional),
-                            # path relative to the YAML file
+    csv: measured-force.csv # two columns time_s, force_N: a header line naming them
+                            # (any order) or none (time first); path relative
+                            # to the YAML file
 
-plus optional ``name``, ``description`` and ``kind``. A bare ``.csv`` file is
-accepted too. Between points the force is linear. Everything is checked on
-load: times must increase, values must be finite, forces must lie in
-[0, limit], and unknown keys are refused.
+plus optional ``name``, ``description`` and ``kind``. A bare ``.csv`` file is accepted
+too. Between points the force is linear. Everything is checked on load:
+times must increase, values must be finite, forces must lie in
+[0, limit], the profile may last at most ``max_duration`` (the rig's
+``limits.max_profile_s``, default 60 s), files may be at most 10 MB and
+unknown keys are refused. Every refusal is one line (``InputError``) naming
+the file and the field.
 
 ``kind: motion`` makes the curve a *displacement* (m, downward) of the
 fingertip's last bone instead of a force, from where the fingertip pulp just
@@ -33,9 +37,14 @@ from typing import Any
 
 import numpy as np
 
-from rig.params import load_yaml_file
+from rig.errors import InputError
+from rig.params import load_yaml_file, read_text_file
 
 DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
+DEFAULT_MAX_DURATION_S = 60.0  # the rig config's limits.max_profile_s default
+MAX_FILE_BYTES = 10_000_000  # a profile file (YAML or CSV) larger than this is refused
+MAX_POINTS = 1_000_000  # knots in one profile (a 60 s table at 2 kHz has 120 001)
+CSV_COLUMNS = ("time_s", "force_N")
 _KEYS = {"name", "description", "segments", "points", "csv", "kind"}
 KINDS = ("force", "motion")
 MOTION_LIMIT_M = 0.05  # a fingertip bone travel beyond 50 mm either way is not a key press
@@ -72,24 +81,32 @@ class Profile:
         return meta
 
 
-def _fail(source: str, field: str, expected: str) -> ValueError:
-    return ValueError(f"{source}: {field}: {expected}")
+def _fail(source: str, field: str, expected: str) -> InputError:
+    """One line naming the file and field (a quoted value's line breaks become spaces)."""
+    return InputError(" ".join(f"{source}: {field}: {expected}".splitlines()))
 
 
 def _number(value: Any, source: str, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise _fail(source, field, f"expected a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:
+        v = math.inf
     if not math.isfinite(v):
         raise _fail(source, field, f"expected a finite number, got {value!r}")
     return v
 
 
 def from_points(points: Sequence[Sequence[Any]], *, name: str = "profile", description: str = "",
-                source: str = "profile", force_limit: float = DEFAULT_FORCE_LIMIT_N) -> Profile:
+                source: str = "profile", force_limit: float = DEFAULT_FORCE_LIMIT_N,
+                max_duration: float = DEFAULT_MAX_DURATION_S) -> Profile:
     """Build and validate a profile from (time s, force N) pairs."""
     if len(points) < 2:
         raise _fail(source, "points", "expected at least two (time, force) pairs")
+    if len(points) > MAX_POINTS:
+        raise _fail(source, "points", f"{len(points)} points, more than the {MAX_POINTS} "
+                    f"allowed")
     t = np.empty(len(points))
     f = np.empty(len(points))
     for i, pair in enumerate(points):
@@ -97,11 +114,11 @@ def from_points(points: Sequence[Sequence[Any]], *, name: str = "profile", descr
             raise _fail(source, f"points[{i}]", f"expected [time_s, force_N], got {pair!r}")
         t[i] = _number(pair[0], source, f"points[{i}] time")
         f[i] = _number(pair[1], source, f"points[{i}] force")
-    return _validated(t, f, name, description, source, force_limit)
+    return _validated(t, f, name, description, source, force_limit, max_duration)
 
 
 def _validated(t: np.ndarray, f: np.ndarray, name: str, description: str, source: str,
-               force_limit: float) -> Profile:
+               force_limit: float, max_duration: float = DEFAULT_MAX_DURATION_S) -> Profile:
     if t[0] < 0:
         raise _fail(source, "points[0] time", f"expected >= 0 s, got {t[0]}")
     steps = np.diff(t)
@@ -110,6 +127,10 @@ def _validated(t: np.ndarray, f: np.ndarray, name: str, description: str, source
         i = int(bad[0]) + 1
         raise _fail(source, f"points[{i}] time",
                     f"expected time to increase, got {t[i]} s after {t[i - 1]} s")
+    if t[-1] > max_duration:
+        i = int(np.flatnonzero(t > max_duration)[0])
+        raise _fail(source, f"points[{i}] time", f"{t[i]:g} s is beyond the longest profile "
+                    f"allowed, {max_duration:g} s (the rig's limits.max_profile_s)")
     neg = np.flatnonzero(f < 0)
     if neg.size:
         i = int(neg[0])
@@ -123,10 +144,14 @@ def _validated(t: np.ndarray, f: np.ndarray, name: str, description: str, source
     return Profile(t, f, name, description, source)
 
 
-def _from_segments(segments: Any, source: str) -> list[list[float]]:
+def _from_segments(segments: Any, source: str,
+                   max_duration: float = DEFAULT_MAX_DURATION_S) -> list[list[float]]:
     if not isinstance(segments, list) or not segments:
         raise _fail(source, "segments", "expected a non-empty list of {hold: s} / "
                     "{ramp: s, to: N} items")
+    if len(segments) > MAX_POINTS:
+        raise _fail(source, "segments", f"{len(segments)} segments, more than the "
+                    f"{MAX_POINTS} allowed")
     pts: list[list[float]] = [[0.0, 0.0]]
     for i, seg in enumerate(segments):
         where = f"segments[{i}]"
@@ -149,31 +174,68 @@ def _from_segments(segments: Any, source: str) -> list[list[float]]:
                         f"{sorted(keys)}")
         if pts[-1][0] <= t:
             raise _fail(source, where, "expected a positive duration")
+        if pts[-1][0] > max_duration:
+            raise _fail(source, where, f"the profile would last {pts[-1][0]:g} s, longer than "
+                        f"the {max_duration:g} s allowed (the rig's limits.max_profile_s)")
     return pts
 
 
+def _csv_cell(text: str, path: Path, n: int, column: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise _fail(str(path), f"line {n} {column}", f"expected a number, got {text.strip()!r}") \
+            from None
+
+
 def _read_csv(path: Path, source: str) -> list[list[Any]]:
+    """Rows (time s, force N) of a two-column CSV: with a header naming ``time_s`` and
+    ``force_N`` (any order, case and spaces ignored) or without one (time first)."""
     if not path.is_file():
         raise _fail(source, "csv", f"file {path} not found")
+    text = read_text_file(path, MAX_FILE_BYTES)
     rows: list[list[Any]] = []
-    with path.open(newline="", encoding="utf-8") as fh:
-        for n, row in enumerate(csv.reader(fh), start=1):
-            if not row or all(not c.strip() for c in row):
+    order = (0, 1)  # columns of time and force
+    first = True
+    reader = csv.reader(text.splitlines())
+    try:
+        for n, row in enumerate(reader, start=1):
+            cells = [c.strip() for c in row]
+            while cells and not cells[-1]:
+                cells.pop()
+            if not cells:
                 continue
-            if len(row) < 2:
-                raise _fail(str(path), f"line {n}", "expected two columns: time_s, force_N")
-            try:
-                rows.append([float(row[0]), float(row[1])])
-            except ValueError:
-                if rows or n > 1:
-                    raise _fail(str(path), f"line {n}", f"expected numbers, got {row[:2]}") \
-                        from None
-                # a header line
+            if len(cells) != 2:
+                raise _fail(str(path), f"line {n}", f"expected two columns {CSV_COLUMNS[0]}, "
+                            f"{CSV_COLUMNS[1]}, got {len(cells)}")
+            if first:
+                first = False
+                names = [c.lower() for c in cells]
+                try:
+                    [float(c) for c in cells]
+                except ValueError:
+                    wanted = [c.lower() for c in CSV_COLUMNS]
+                    unknown = [c for c, low in zip(cells, names, strict=True)
+                               if low not in wanted]
+                    if unknown or len(set(names)) != 2:
+                        raise _fail(str(path), f"line {n} header",
+                                    f"expected the columns {CSV_COLUMNS[0]} and "
+                                    f"{CSV_COLUMNS[1]} (any order), got {cells}") from None
+                    order = (names.index(wanted[0]), names.index(wanted[1]))
+                    continue
+            rows.append([_csv_cell(cells[order[0]], path, n, CSV_COLUMNS[0]),
+                         _csv_cell(cells[order[1]], path, n, CSV_COLUMNS[1])])
+            if len(rows) > MAX_POINTS:
+                raise _fail(str(path), f"line {n}", f"more than the {MAX_POINTS} points "
+                            f"allowed")
+    except csv.Error as exc:
+        raise _fail(str(path), f"line {reader.line_num}", f"not valid CSV ({exc})") from None
     return rows
 
 
 def motion_from_points(points: Sequence[Sequence[Any]], *, name: str = "motion",
-                       description: str = "", source: str = "profile") -> Profile:
+                       description: str = "", source: str = "profile",
+                       max_duration: float = DEFAULT_MAX_DURATION_S) -> Profile:
     """A motion profile from (time s, displacement m) pairs of the fingertip's last bone."""
     if len(points) < 2:
         raise _fail(source, "points", "expected at least two (time, displacement) pairs")
@@ -192,6 +254,9 @@ def motion_from_points(points: Sequence[Sequence[Any]], *, name: str = "motion",
         i = int(bad[0]) + 1
         raise _fail(source, f"points[{i}] time",
                     f"expected time to increase, got {t[i]} s after {t[i - 1]} s")
+    if t[-1] > max_duration:
+        raise _fail(source, f"points[{len(t) - 1}] time", f"{t[-1]:g} s: longer than the "
+                    f"{max_duration:g} s allowed (the rig's limits.max_profile_s)")
     far = np.flatnonzero(np.abs(x) > MOTION_LIMIT_M)
     if far.size:
         i = int(far[0])
@@ -201,21 +266,26 @@ def motion_from_points(points: Sequence[Sequence[Any]], *, name: str = "motion",
 
 
 def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N,
-         kinds: Sequence[str] = ("force",)) -> Profile:
-    """Load and validate a profile file (YAML or CSV) of one of ``kinds``."""
+         kinds: Sequence[str] = ("force",),
+         max_duration: float = DEFAULT_MAX_DURATION_S) -> Profile:
+    """Load and validate a profile file (YAML or CSV) of one of ``kinds``; every refusal is
+    a one-line ``InputError`` naming the file."""
     p = Path(path)
     if p.suffix.lower() == ".csv":
         return from_points(_read_csv(p, str(p)), name=p.stem, source=str(p),
-                           force_limit=force_limit)
-    data = load_yaml_file(p)
+                           force_limit=force_limit, max_duration=max_duration)
+    data = load_yaml_file(p, MAX_FILE_BYTES)
     if not isinstance(data, Mapping):
-        raise ValueError(f"{p}: expected a mapping with segments, points or csv")
+        raise InputError(f"{p}: expected a mapping with segments, points or csv")
     unknown = sorted(set(map(str, data)) - _KEYS)
     if unknown:
         raise _fail(str(p), unknown[0], f"unknown key (expected one of {sorted(_KEYS)})")
     forms = [k for k in ("segments", "points", "csv") if k in data]
     if len(forms) != 1:
-        raise ValueError(f"{p}: expected exactly one of segments, points or csv, got {forms}")
+        raise InputError(f"{p}: expected exactly one of segments, points or csv, got {forms}")
+    for key in ("name", "description"):
+        if key in data and not isinstance(data[key], str | int | float):
+            raise _fail(str(p), key, f"expected text, got {type(data[key]).__name__}")
     name = str(data.get("name", p.stem))
     desc = str(data.get("description", ""))
     kind = data.get("kind", "force")
@@ -226,13 +296,17 @@ def load(path: str | Path, force_limit: float = DEFAULT_FORCE_LIMIT_N,
                     f"profile (a motion profile drives the model only: rig simulate PROFILE "
                     f"-e fingertip)")
     if forms[0] == "segments":
-        pts: Sequence[Sequence[Any]] = _from_segments(data["segments"], str(p))
+        pts: Sequence[Sequence[Any]] = _from_segments(data["segments"], str(p), max_duration)
     elif forms[0] == "points":
         if not isinstance(data["points"], list):
             raise _fail(str(p), "points", "expected a list of [time_s, force_N] pairs")
         pts = data["points"]
     else:
-        pts = _read_csv(p.parent / str(data["csv"]), str(p))
+        if not isinstance(data["csv"], str) or not data["csv"].strip():
+            raise _fail(str(p), "csv", f"expected a file name, got {data['csv']!r}")
+        pts = _read_csv(p.parent / data["csv"], str(p))
     if kind == "motion":
-        return motion_from_points(pts, name=name, description=desc, source=str(p))
-    return from_points(pts, name=name, description=desc, source=str(p), force_limit=force_limit)
+        return motion_from_points(pts, name=name, description=desc, source=str(p),
+                                  max_duration=max_duration)
+    return from_points(pts, name=name, description=desc, source=str(p), force_limit=force_limit,
+                       max_duration=max_duration)

@@ -64,6 +64,29 @@ class Measurement:
         return self.units.get(name, "") in RELATIVE_UNITS
 
 
+def status_warning(path: str | Path) -> str | None:
+    """One line warning that the run file at ``path`` did not finish (its status is
+    ``aborted: ...`` or still ``running``), else None (complete, or not a readable run file:
+    ``load`` says why)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            status = f.attrs.get("status")
+    except (OSError, ValueError):
+        return None
+    if isinstance(status, bytes):
+        status = status.decode(errors="replace")
+    status = " ".join(str(status).split()) if status is not None else None
+    if status is None or status == "complete":
+        return None
+    if status.startswith("aborted"):
+        return (f"warning: {path}: the run was {status}; its last trial may end early and "
+                f"the analysis uses only the samples recorded before the abort")
+    return (f"warning: {path}: the run is not finished (status {status}: still running, or its "
+            f"writer died); the analysis uses only the samples flushed so far")
+
+
 def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurement]:
     """The trials of a run file as measurements (all of them by default)."""
     run = runfile.read(path)

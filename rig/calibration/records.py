@@ -202,6 +202,8 @@ def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str
             f"first, or set calibration.use_raw_units: true to run with data-sheet values")
     if missing and cfg.backend != "sim":
         for s in missing:
+            if s not in cals:  # motor: no data-sheet record; the run leads by loop.advance_s
+                continue
             old = cals[s]
             cals[s] = CalRecord(old.sensor, True, old.sensitivity, old.offset, old.raw_units,
                                 old.units, "data sheet (calibration.use_raw_units: no record)")

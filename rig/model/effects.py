@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from rig.errors import InputError
 from rig.params import Parameters
 
 if TYPE_CHECKING:
@@ -454,6 +455,23 @@ def register(cls: type[Effect]) -> type[Effect]:
     return cls
 
 
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _where(exc: BaseException, path: Path) -> str:
+    """'line N: ' of the user's file where ``exc`` was raised (or its syntax error), if known."""
+    if isinstance(exc, SyntaxError) and exc.lineno:
+        return f"line {exc.lineno}: "
+    tb = exc.__traceback__
+    line = None
+    while tb is not None:
+        if Path(tb.tb_frame.f_code.co_filename).resolve() == path.resolve():
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    return f"line {line}: " if line else ""
+
+
 def _load_class(ref: str) -> type[Effect]:
     target, _, cls_name = ref.rpartition(":")
     if not target or not cls_name:
@@ -469,12 +487,19 @@ def _load_class(ref: str) -> type[Effect]:
             raise ValueError(f"effect {ref!r}: cannot import {path}")
         module = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = module
-        spec.loader.exec_module(module)
+        try:
+            spec.loader.exec_module(module)
+        except Exception as exc:  # the user's file: any error is theirs, said on one line
+            sys.modules.pop(mod_name, None)
+            raise InputError(_one_line(f"effect {ref!r}: {path} failed to import: "
+                                       f"{_where(exc, path)}{type(exc).__name__}: {exc}")
+                             ) from None
     else:
         try:
             module = importlib.import_module(target)
-        except ImportError as exc:
-            raise ValueError(f"effect {ref!r}: cannot import module {target!r} ({exc})") from None
+        except Exception as exc:
+            raise InputError(_one_line(f"effect {ref!r}: cannot import module {target!r} "
+                                       f"({type(exc).__name__}: {exc})")) from None
     cls = getattr(module, cls_name, None)
     if not (isinstance(cls, type) and issubclass(cls, Effect)):
         raise ValueError(f"effect {ref!r}: {cls_name} is not a subclass of rig Effect")

@@ -40,6 +40,7 @@ from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.daq import Daq, open_daq
 from rig.drive import Drive, DriveError, DriveMonitor
+from rig.errors import InputError
 
 
 class Controller(Protocol):
@@ -71,8 +72,10 @@ def load_controller(spec: str) -> Controller:
         raise ValueError(f"loop.controller: expected 'open_loop' or 'module:Class', got {spec!r}")
     try:
         obj: Controller = getattr(importlib.import_module(mod), cls)()
-    except (ImportError, AttributeError) as exc:
-        raise ValueError(f"loop.controller: cannot load {spec!r} ({exc})") from None
+    except Exception as exc:  # the user's module: any error in importing or making it, one line
+        text = " ".join(f"loop.controller: cannot load {spec!r} ({type(exc).__name__}: "
+                        f"{exc})".split())
+        raise InputError(text) from None
     return obj
 
 
@@ -190,7 +193,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     say = on_line or (lambda s: None)
     if trials < 1:
         raise ValueError(f"trials: expected at least 1, got {trials}")
-    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
+                            max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
     if cfg.backend == "ni" and cfg.drive.port == "sim":
         raise ValueError("drive.port: 'sim' (the simulated drive) needs backend: sim")
