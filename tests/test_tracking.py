@@ -1,0 +1,122 @@
+"""Issue 18: learning the feedforward across trials (ILC) and load-cell feedback.
+
+Offline against the simulated drive chain (rig.control.offline: the drive model and
+the load cell's noise; the drive is a force source, so the action does not change the
+key force) for speed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig import config, profiles
+from rig.control import feedback, ilc, offline
+
+CFG = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"}})
+HZ = 500.0
+NOISE = CFG.sim.load_cell_noise_n
+
+
+def grid(name: str) -> tuple[profiles.Profile, np.ndarray, np.ndarray]:
+    p = profiles.load(f"profiles/{name}.yaml", force_limit=CFG.limits.max_force_n)
+    t = np.arange(int(np.ceil(p.duration * HZ - 1e-9)) + 1) / HZ
+    return p, np.array([p.at(x) for x in t]), np.array([p.at(x + 0.008) for x in t])
+
+
+def learn(name: str, variant: str, trials: int = 5, factor: float = 1.0, noise: float = NOISE,
+          jitter: float = 0.0, drift: float = 0.0, seed: int = 1):
+    p, r, u0 = grid(name)
+    lrn = ilc.Learner.start(r, u0, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
+                            HZ, noise_n=noise)
+    rng = np.random.default_rng(seed)
+    keys, tables = [], []
+    for k in range(trials):
+        tables.append(lrn.u.copy())
+        res = offline.play(lrn.u, variant=variant, noise_n=noise, jitter_s=jitter,
+                           gain=1.0 + drift * (-1) ** k, rng=rng)
+        assert res.limited == 0  # no learned demand is cut by the loop's limiter
+        keys.append(ilc.errors(r, res.key_force, p.peak))
+        lrn.update(res.measured)
+        if lrn.stopped:
+            break
+    return p, lrn, keys, tables
+
+
+@pytest.mark.parametrize("variant", ["single", "step_size"])
+def test_forte_learns_to_within_3_percent_in_five_trials(variant):
+    p, lrn, keys, _ = learn("forte", variant)
+    best_u, best = lrn.result()
+    first = lrn.history[0]
+    assert first["max_pct"] > 6.0  # the open-loop 8 ms advance: the thesis's ~6.5 %
+    assert best["max_pct"] <= 3.0 and best["rms_pct"] <= 1.0
+    k = keys[int(best["trial"]) - 1]
+    assert k["rms_pct"] <= 1.0
+    assert k["max_pct"] < first["max_pct"] / 3
+
+
+def test_every_learned_table_is_within_the_limits():
+    _, lrn, _, tables = learn("forte", "single")
+    dt = 1 / HZ
+    for u in tables + [lrn.u]:
+        assert u.min() >= 0 and u.max() <= CFG.limits.max_force_n
+        steps = np.abs(np.diff(np.r_[0.0, u, 0.0]))
+        assert steps.max() <= CFG.limits.max_rate_n_per_s * dt + 1e-9
+
+
+def test_limit_table_clips_force_and_rate():
+    lim = config.Limits(max_force_n=10.0, max_rate_n_per_s=1000.0)
+    out = ilc.limit_table(np.array([-5.0, 50.0, 50.0, 50.0, 0.0]), lim, 0.002)
+    np.testing.assert_allclose(out, [0.0, 2.0, 4.0, 4.0, 2.0])  # and 0 reachable after it
+
+
+def test_a_diverging_gain_is_stopped_and_the_best_trial_kept():
+    p, lrn, _, tables = learn("forte", "single", trials=8, factor=6.0)
+    assert lrn.stopped is not None and "kept trial" in lrn.stopped
+    best_u, best = lrn.result()
+    assert best["rms_n"] == min(h["rms_n"] for h in lrn.history)
+    np.testing.assert_array_equal(best_u, tables[int(best["trial"]) - 1])
+    np.testing.assert_array_equal(lrn.u, best_u)  # the next trial plays the best table
+
+
+@pytest.mark.parametrize("case", [{"noise": 2 * NOISE}, {"jitter": 0.001}, {"drift": 0.05}])
+def test_forte_learning_is_robust(case):
+    # twice the noise, 1 ms jitter, gain alternating +-5 % (10 % drift between trials)
+    _, lrn, keys, _ = learn("forte", "single", **case)
+    _, best = lrn.result()
+    assert best["max_pct"] <= 6.0 and best["rms_pct"] <= 2.0
+
+
+def test_q_filter_is_zero_phase():
+    t = np.arange(500) / HZ
+    x = np.sin(2 * np.pi * 5 * t)
+    y = ilc.q_filter(x, 100.0, HZ)
+    assert np.abs(y[50:-50] - x[50:-50]).max() < 0.01  # a 5 Hz wave passes with no lag
+    noise = np.random.default_rng(0).standard_normal(2000)
+    assert ilc.q_filter(noise, 20.0, HZ).std() < 0.4
+
+
+def test_learning_filter_from_a_motor_record():
+    rec = {"fit": {"sensitivity": 0.8, "lag_s": 0.012}, "content_hash": "sha256:abc"}
+    f = ilc.LearningFilter.from_record(rec, HZ)
+    assert f.gain == pytest.approx(1 / 0.8) and f.lead == 6 and "sha256:abc" in f.source
+
+
+def test_load_cell_pi_improves_forte_tracking():
+    p, r, u0 = grid("forte")
+    open_ = offline.play(u0, rng=np.random.default_rng(1))
+    pi = offline.play(u0, controller=feedback.LoadCellPI(), rng=np.random.default_rng(1))
+    e0 = ilc.errors(r, open_.key_force, p.peak)
+    e1 = ilc.errors(r, pi.key_force, p.peak)
+    assert e1["rms_pct"] < 0.5 * e0["rms_pct"]
+
+
+def test_load_cell_pi_anti_windup():
+    ctl = feedback.LoadCellPI(max_force_n=60.0, integral_limit_n=5.0)
+    ctl.reset()
+    for j in range(2000):   # the key does not follow at all (e.g. the drive saturated)
+        ctl(j / HZ, 30.0, 0.0)
+    assert ctl.integral == pytest.approx(5.0)
+    ctl.reset()
+    for j in range(2000):   # demand far above max force: the integral does not grow
+        ctl(j / HZ, 80.0, 0.0)
+    assert ctl.integral == 0.0
