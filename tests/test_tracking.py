@@ -6,6 +6,10 @@ key force) for speed."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -120,3 +124,42 @@ def test_load_cell_pi_anti_windup():
     for j in range(2000):   # demand far above max force: the integral does not grow
         ctl(j / HZ, 80.0, 0.0)
     assert ctl.integral == 0.0
+
+
+# ---- the real CLI: rig run --learn in a subprocess, then a later rig run uses the record ----
+
+def _rig(args: list[str], cwd) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "rig", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=900, check=False)
+
+
+@pytest.mark.slow
+def test_rig_run_learn_saves_a_record_that_a_later_run_uses(tmp_path):
+    from rig import runfile
+    from rig.control import records
+    from rig.services import run as run_svc
+
+    (tmp_path / "rig.yaml").write_text(
+        "name: learn\nbackend: sim\ndrive: {port: sim}\nsim: {realtime: false, seed: 4}\n"
+        f"loop: {{rest_s: 0.05, settle_s: 0.05}}\ndata_folder: {tmp_path / 'data'}\n")
+    forte = str(Path("profiles/forte.yaml").resolve())
+    res = _rig(["run", forte, "--rig", "rig.yaml", "--learn", "2", "--lockstep", "-o",
+                "f.h5"], tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "trial  max error %  RMS error %" in res.stdout
+    saved = list((tmp_path / "data" / "learned").glob("forte-*.json"))
+    assert len(saved) == 1
+    rec = records.read(saved[0])
+    assert len(rec["trials"]) == 2 and rec["profile"]["content_hash"].startswith("sha256:")
+    open_loop = run_svc.tracking_error(tmp_path / "f-learn1.h5")
+    later = _rig(["run", forte, "--rig", "rig.yaml", "--lockstep", "-o", "later.h5"], tmp_path)
+    assert later.returncode == 0, later.stderr
+    assert later.stdout.splitlines()[0].startswith(f"using the learned feedforward {saved[0]}")
+    err = run_svc.tracking_error(tmp_path / "later.h5")
+    assert err["max_error_pct"] < 0.5 * open_loop["max_error_pct"]  # the learned error
+    meta = runfile.read(tmp_path / "later.h5").metadata
+    assert meta["learned_feedforward"]["content_hash"] == rec["content_hash"]
+    assert meta["run"]["compensation"]["kind"] == "learned"
+    off = _rig(["run", forte, "--rig", "rig.yaml", "--lockstep", "--no-learned", "-o",
+                "off.h5"], tmp_path)
+    assert off.returncode == 0 and "learned" not in off.stdout.splitlines()[0]
