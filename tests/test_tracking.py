@@ -37,7 +37,7 @@ def learn(name: str, variant: str, trials: int = 5, factor: float = 1.0, noise: 
     for k in range(trials):
         tables.append(lrn.u.copy())
         res = offline.play(lrn.u, variant=variant, noise_n=noise, jitter_s=jitter,
-                           gain=1.0 + drift * (-1) ** k, rng=rng)
+                           gain=1.0 - drift * k / max(trials - 1, 1), rng=rng)
         assert res.limited == 0  # no learned demand is cut by the loop's limiter
         keys.append(ilc.errors(r, res.key_force, p.peak))
         lrn.update(res.measured)
@@ -82,12 +82,16 @@ def test_a_diverging_gain_is_stopped_and_the_best_trial_kept():
     np.testing.assert_array_equal(lrn.u, best_u)  # the next trial plays the best table
 
 
-@pytest.mark.parametrize("case", [{"noise": 2 * NOISE}, {"jitter": 0.001}, {"drift": 0.05}])
+@pytest.mark.parametrize("case", [{"noise": 2 * NOISE}, {"jitter": 0.001}, {"drift": 0.10}])
 def test_forte_learning_is_robust(case):
-    # twice the noise, 1 ms jitter, gain alternating +-5 % (10 % drift between trials)
+    # twice the noise, 1 ms jitter, the drive's gain drifting down 10 % over the 5 trials:
+    # still learns (a later trial is the best) to within twice the nominal criteria
     _, lrn, keys, _ = learn("forte", "single", **case)
     _, best = lrn.result()
+    assert best["trial"] > 1
     assert best["max_pct"] <= 6.0 and best["rms_pct"] <= 2.0
+    if "drift" not in case:  # with the drift the key force's max error is 4.3 % (issue 18 gap)
+        assert keys[int(best["trial"]) - 1]["max_pct"] <= 4.0
 
 
 def test_q_filter_is_zero_phase():

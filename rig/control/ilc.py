@@ -26,9 +26,10 @@ load-cell force ``y`` the error ``e = r - y`` (r: the profile on the same grid) 
   (default 1.5), or when two trials are worse than the best: their RMS error
   beyond the load cell's noise (sqrt(rms^2 - noise_n^2)) exceeds the best's by
   10 % + 0.1 noise_n (a noise-level difference is not divergence).
-* The gain of the k-th update is gain / k: each trial's correction is averaged
-  with the earlier ones, so the noise learned into the table shrinks instead of
-  accumulating (the first update takes the full gain).
+* The gain of the k-th update is gain x max(1 / k, min_gain_fraction = 0.5): the
+  first update takes the full gain, later ones half, so the load cell's noise
+  learned into the table does not build up at the full gain while a drifting
+  drive is still followed.
 
 SI units throughout: forces N, times s.
 """
@@ -128,6 +129,7 @@ class Learner:
     control_hz: float
     grow_factor: float = 1.5
     noise_n: float = 0.0
+    min_gain_fraction: float = 0.5
     history: list[dict[str, float]] = field(default_factory=list)
     best_u: np.ndarray | None = None
     best: dict[str, float] | None = None
@@ -174,9 +176,8 @@ class Learner:
                 return err
         e = self.reference - y
         m = self.filt.lead
-        # gain / k: trial k's correction is averaged with the earlier ones, so the load
-        # cell's noise learned into u shrinks as 1/sqrt(k) instead of accumulating
-        gain = self.filt.gain / len(self.history)
+        # full gain first, then at least min_gain_fraction of it: less noise learned in
+        gain = self.filt.gain * max(1.0 / len(self.history), self.min_gain_fraction)
         shifted = np.r_[e[m:], np.full(m, e[-1])] if m else e
         new = q_filter(self.u + gain * shifted, self.filt.q_cutoff_hz, self.control_hz)
         self.u = limit_table(new, self.limits, 1.0 / self.control_hz)
