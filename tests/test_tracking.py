@@ -203,3 +203,44 @@ def test_a_record_is_found_only_for_the_same_profile_rig_and_motor_calibration(t
     path.write_text(json.dumps(body))
     with pytest.warns(UserWarning, match="content_hash does not match"):
         assert records.find(cfg, p, []) is None            # an altered record is not used
+
+
+def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback(monkeypatch):
+    # the loop's cycle as rig run does it (feedforward hook, controller hook, limiter,
+    # volts, write) on the NI backend through autospecs of nidaqmx (tests/test_daq_ni.py)
+    import test_daq_ni as tni
+
+    from rig import daq, loadcell, motor_torque
+    from rig.control import records
+
+    readers = tni.ni.__wrapped__(monkeypatch)
+    cfg = tni.ni_config()
+    p, r, u0 = grid("forte")
+    err = {"max_pct": 2.0, "rms_pct": 0.5, "max_n": 0.6, "rms_n": 0.15, "trial": 1.0}
+    rec = records.build(cfg, p, [], u0, [err], err, {}, None)
+    ff, _ = records.demand_source(rec)
+    ctl = feedback.LoadCellPI()
+    d = daq.open_daq(cfg)
+    try:
+        d.arm()
+        reader = daq.open_reader(d.reader_spec())
+        lc = cfg.channels.load_cell
+        sens = loadcell.nominal_sensitivity(lc)
+        limiter = motor_torque.Limiter(cfg.limits, 1 / HZ)
+        scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
+                                                         cfg.channels.drive_output)
+        ctl.reset()
+        writer = readers["writer"].return_value
+        for j in range(60):
+            reader.publish_feedback(4 * j, sens * 0.5 * u0[j])  # the key at half the demand
+            _, ratio = d.feedback_ratio()
+            measured = float(loadcell.to_newtons(ratio, sens, 0.0))
+            demand, _ = limiter(ctl(j / HZ, ff(p, j / HZ), measured))
+            d.write_volts(scaling.volts(demand))
+            assert writer.write_one_sample.call_args.args[0] == pytest.approx(
+                scaling.volts(demand))
+        assert demand > u0[59]   # the PI pushes harder than the table when the key lags
+        reader.close()
+    finally:
+        d.close()
+    writer.write_one_sample.assert_called_with(0.0, timeout=1.0)
