@@ -244,3 +244,39 @@ def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback(monkeypatch):
     finally:
         d.close()
     writer.write_one_sample.assert_called_with(0.0, timeout=1.0)
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_learning_keeps_what_was_learned(tmp_path, monkeypatch):
+    import os
+    import signal
+
+    from rig import runfile
+    from rig.control import records
+    from rig.services import learn as learn_svc
+    from rig.services import run as run_svc
+
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"},
+                               "sim": {"realtime": False},
+                               "loop": {"rest_s": 0.05, "settle_s": 0.05},
+                               "data_folder": str(tmp_path)})
+    real = run_svc.run
+    calls = []
+
+    def run_then_ctrl_c(*a, **kw):
+        calls.append(kw["out"])
+        if len(calls) == 2:   # Ctrl-C in the middle of the second learning trial
+            kw["on_cycle"] = lambda ctx: (os.kill(os.getpid(), signal.SIGINT)
+                                          if ctx.tick == 150 else None)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(run_svc, "run", run_then_ctrl_c)
+    lines: list[str] = []
+    rep = learn_svc.learn(Path("profiles/forte.yaml"), cfg, 4, out=tmp_path / "f.h5",
+                          lockstep=True, on_line=lines.append)
+    assert len(calls) == 2 and "interrupted (Ctrl-C)" in (rep.stopped or "")
+    assert runfile.read(calls[1]).status.startswith("aborted: interrupted")
+    assert rep.record is not None and len(rep.record["trials"]) == 1
+    assert records.find(cfg, learn_svc.profiles.load(Path("profiles/forte.yaml")), [])[1] == \
+        rep.record_path
+    assert any(line.startswith("learning stopped: trial 2") for line in lines)
