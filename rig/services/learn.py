@@ -85,7 +85,9 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     motor = next((r for r in full_records if r.get("sensor") == "motor"), None)
     filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None
             else ilc.LearningFilter.default(hz, cfg.loop.advance_s, factor))
-    noise = cfg.sim.load_cell_noise_n if cfg.backend == "sim" else 0.22
+    # the load cell's noise (1 sigma, N): the simulated one, else the data sheet's 0.67 N
+    # error bound taken as 3 sigma
+    noise = cfg.sim.load_cell_noise_n if cfg.backend == "sim" else 0.67 / 3
     learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise)
     filt_meta = {"gain_n_per_n": filt.gain, "lead_cycles": filt.lead,
                  "q_cutoff_hz": filt.q_cutoff_hz, "source": filt.source}
