@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -147,6 +147,11 @@ def run_profile(
                                              "default <data_folder>/<time>-<profile>.h5")] = None,
     lockstep: Annotated[bool, typer.Option(
         help="simulated rig only: step as fast as possible instead of in real time")] = False,
+    learn: Annotated[int, typer.Option(  # issue 18
+        "--learn", help="learn the feedforward over N trials (ILC) and save it as a record")] = 0,
+    learned: Annotated[bool, typer.Option(  # issue 18
+        "--learned/--no-learned", help="use the learned-feedforward record of this profile "
+        "if there is one")] = True,
 ) -> None:
     """Press the key with PROFILE on the rig and record everything into a run file."""
     from rig import config as rig_config
@@ -156,10 +161,36 @@ def run_profile(
         cfg, which = rig_config.resolve(rig)
     except ValueError as exc:
         raise _fail(exc) from None
+    # ---- issue 18: --learn N, and the learned-feedforward record (rig.control.records) ----
+    record = None
+    if learn:
+        if trials != 1:
+            raise _fail(ValueError("--learn: plays one trial per learning step; drop --trials"))
+        from rig.services import learn as learn_svc
+
+        _plain(which)
+        try:
+            lrep = learn_svc.learn(profile, cfg, learn, out=out, lockstep=lockstep,
+                                   on_line=_plain, use_learned=learned)
+        except (ValueError, RuntimeError) as exc:
+            raise _fail(exc) from None
+        if lrep.record is None:
+            raise typer.Exit(code=1)
+        return
+    if learned:
+        try:
+            record = _learned_record(profile, cfg)
+        except ValueError as exc:
+            raise _fail(exc) from None
+    if record is not None:
+        rec, rpath = record
+        _plain(f"using the learned feedforward {rpath} ({len(rec['trials'])} trials, max error "
+               f"{rec['final_error']['max_pct']:.2f} % of the peak; --no-learned to ignore it)")
+    # ---- end issue 18 ----
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
-                         on_line=_plain)
+                         on_line=_plain, learned=record[0] if record else None)
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
     lat = report.lateness
@@ -183,6 +214,16 @@ def run_profile(
     if not report.complete:
         raise typer.Exit(code=1)
 # ---- end of rig run ----
+
+
+def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | None:
+    """Issue 18: the learned-feedforward record for this profile, rig and calibration."""
+    from rig import calrecords, profiles
+    from rig.calibration import records as cal_records
+    from rig.control import records as learned_records
+
+    prof = profiles.load(profile, force_limit=cfg.limits.max_force_n)
+    return learned_records.find(cfg, prof, cal_records.embedded(calrecords.lookup(cfg), cfg))
 
 
 # ---- rig calibrate / rig check (issue 5): the work is in rig.services.calibrate ----

@@ -188,8 +188,11 @@ def _default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
 def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
-        on_cycle: Callable[[CycleContext], None] | None = None) -> RunReport:
-    """Run the profile ``trials`` times on the configured rig; write one run file."""
+        on_cycle: Callable[[CycleContext], None] | None = None,
+        learned: dict[str, Any] | None = None) -> RunReport:
+    """Run the profile ``trials`` times on the configured rig; write one run file.
+    ``learned``: a learned-feedforward record (rig.control.records) whose table is the
+    feedforward instead of the advance or the motor compensation (issue 18)."""
     say = on_line or (lambda s: None)
     if trials < 1:
         raise ValueError(f"trials: expected at least 1, got {trials}")
@@ -202,6 +205,12 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     cals = calrecords.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = demand_source(cfg, full_records)
+    # ---- issue 18 hook: a learned feedforward table replaces the compensation ----
+    if learned is not None:
+        from rig.control import records as learned_records
+
+        feedforward, compensation = learned_records.demand_source(learned)
+    # ---- end issue 18 hook ----
     path = Path(out) if out is not None else _default_path(cfg, profile)
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
@@ -223,6 +232,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
+    if learned is not None:  # issue 18: the record in use, embedded whole
+        metadata["learned_feedforward"] = learned
 
     cpu = loop_cpu(cfg, say)
     daq = open_daq(cfg, lockstep=lockstep, on_line=say)

@@ -1,0 +1,98 @@
+"""Force tracking across learning trials (issue 18), offline on the simulated drive chain.
+
+For each drive variant (single, asymmetric, step_size) and profile (forte, piano,
+two-peak): the maximum and RMS error (% of the peak) of the load cell's force
+(what the loop sees, with its noise) and of the true key force, for the open-loop
+8 ms advance, the static map + lag compensation (demand = profile(t + 8 ms) / K,
+K = 0.9322 N/N), and each of 5 ILC trials (rig.control.ilc, defaults) started from
+the advance; then the same with the load-cell PI (rig.control.feedback) in the
+loop; then forte/single under twice the noise, 1 ms jitter, a drive gain drifting
+down 10 % from the first trial to the last, and a learning gain 6x too high (must stop).
+Limits (motor_torque.Limiter) acting on any learned demand are counted.
+
+    python benchmarks/tracking.py [--trials 5] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from rig import config, profiles
+from rig.control import feedback, ilc, offline
+
+ROOT = Path(__file__).resolve().parents[1]
+CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": "sim"}})
+HZ = 500.0
+NOISE = CFG.sim.load_cell_noise_n
+
+
+def fmt(m: dict[str, float], k: dict[str, float]) -> str:
+    return f"{m['max_pct']:6.2f} {m['rms_pct']:5.2f} | {k['max_pct']:6.2f} {k['rms_pct']:5.2f}"
+
+
+def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
+         noise: float = NOISE, jitter: float = 0.0, drift: float = 0.0,
+         factor: float = ilc.DEFAULT_LEARNING_FACTOR) -> None:
+    p = profiles.load(ROOT / "profiles" / f"{name}.yaml", force_limit=CFG.limits.max_force_n)
+    t = np.arange(int(np.ceil(p.duration * HZ - 1e-9)) + 1) / HZ
+    r = np.array([p.at(x) for x in t])
+    adv = np.array([p.at(x + 0.008) for x in t])
+    rng = np.random.default_rng(seed)
+
+    def play(u: np.ndarray, k: int = 0) -> offline.TrialResult:
+        return offline.play(u, variant=variant, noise_n=noise, jitter_s=jitter,
+                            gain=1.0 - drift * k / max(trials - 1, 1), rng=rng,
+                            controller=feedback.LoadCellPI() if pi else None)
+
+    label = (f"{name:8s} {variant:10s} {'PI' if pi else '--':2s} noise {noise:.2f} N jitter "
+             f"{jitter * 1e3:.0f} ms drift {drift * 100:.0f} % gain x{factor:g}")
+    print(label)
+    floor = {"measured max": max(3.0, 300 * NOISE / p.peak),
+             "key max": max(2.0, 100 * NOISE / p.peak), "key rms": max(1.0, 50 * NOISE / p.peak)}
+    print("  criteria (% of peak): measured max <= {measured max:.2f}, key max <= {key max:.2f}, "
+          "key RMS <= {key rms:.2f}".format(**floor))
+    for what, u in (("8 ms advance", adv), ("map + lag", adv / ilc.DEFAULT_GAIN_K)):
+        res = play(u)
+        errs = ilc.errors(r, res.measured, p.peak), ilc.errors(r, res.key_force, p.peak)
+        print(f"  {what:14s} {fmt(*errs)}")
+    lrn = ilc.Learner.start(r, adv, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
+                            HZ, noise_n=noise)
+    limited = 0
+    keys = []
+    for k in range(trials):
+        res = play(lrn.u, k)
+        limited += res.limited if not pi else 0
+        keys.append(ilc.errors(r, res.key_force, p.peak))
+        m = lrn.update(res.measured)
+        print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}")
+        if lrn.stopped:
+            print(f"  stopped: {lrn.stopped}")
+            break
+    _, best = lrn.result()
+    kb = keys[int(best["trial"]) - 1]
+    print(f"  best: trial {int(best['trial'])}  {fmt(best, kb)}  limiter acted on {limited} "
+          "learned demands")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=1)
+    a = ap.parse_args()
+    print("columns: measured force max % RMS % | true key force max % RMS % (of the peak)")
+    for variant in ("single", "asymmetric", "step_size"):
+        for name in ("forte", "piano", "two-peak"):
+            case(name, variant, a.trials, a.seed)
+    for variant in ("single", "asymmetric", "step_size"):
+        case("forte", variant, a.trials, a.seed, pi=True)
+    case("forte", "single", a.trials, a.seed, noise=2 * NOISE)
+    case("forte", "single", a.trials, a.seed, jitter=0.001)
+    case("forte", "single", a.trials, a.seed, drift=0.10)
+    case("forte", "single", 8, a.seed, factor=6.0)
+
+
+if __name__ == "__main__":
+    main()

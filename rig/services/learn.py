@@ -1,0 +1,132 @@
+"""`rig run PROFILE --learn N`: learn the feedforward across N trials (issue 18).
+
+    report = learn(Path("profiles/forte.yaml"), cfg, 5, on_line=print)
+
+Each learning trial is one `rig run` (rig.services.run.run, one run file per trial,
+``<out stem>-learnK.h5``) playing the current table through the loop's
+``learned`` hook; after it, the load cell's force at each loop cycle (the run file's
+``commands/measured_force``) updates the table (rig.control.ilc.Learner). The
+first table is what `rig run` would have played: the newest learned record for
+this profile if there is one (learning goes on from it), else the motor
+calibration's compensation or the 8 ms advance. The learning gain and lead come
+from the motor calibration record when one is in use, else the documented
+defaults (rig.control.ilc). Learning stops early (keeping the best trial) when the
+error grows; Ctrl-C, or a trial that ends aborted, stops it too and keeps what was
+learned so far. The best table is written as a learned-feedforward record
+(rig.control.records) that later `rig run PROFILE` uses.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rig import calrecords, profiles, runfile
+from rig.calibration import records as cal_records
+from rig.config import RigConfig
+from rig.control import ilc
+from rig.control import records as learned_records
+from rig.services import run as run_svc
+
+
+@dataclass
+class LearnReport:
+    record: dict[str, Any] | None
+    record_path: Path | None
+    history: list[dict[str, float]]
+    runs: list[Path] = field(default_factory=list)
+    stopped: str | None = None
+
+
+def grid(profile: profiles.Profile, control_hz: float) -> np.ndarray:
+    """The loop's trial times (s) over the profile: as many cycles as `rig run` plays."""
+    n = int(np.ceil(profile.duration * control_hz - 1e-9)) + 1
+    return np.arange(n) / control_hz
+
+
+def measured_force(path: Path, n: int) -> np.ndarray:
+    """The load cell at the first ``n`` loop cycles from the profile's start (N)."""
+    tr = runfile.read(path).trials[0]
+    t = tr.commands["time"]
+    y = tr.commands["measured_force"][t >= -1e-9]
+    if y.size < n:
+        raise RuntimeError(f"{path}: commands/measured_force: {y.size} cycles, expected {n}")
+    return np.asarray(y[:n], float)
+
+
+def table(line: list[str]) -> str:
+    return "  ".join(line)
+
+
+def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None,
+          lockstep: bool = False, factor: float = ilc.DEFAULT_LEARNING_FACTOR,
+          on_line: Callable[[str], None] | None = None,
+          use_learned: bool = True) -> LearnReport:
+    say = on_line or (lambda s: None)
+    if n < 1:
+        raise ValueError(f"--learn: expected at least 1 trial, got {n}")
+    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    hz = cfg.rates.control_hz
+    full_records = cal_records.embedded(calrecords.lookup(cfg), cfg)
+    t = grid(profile, hz)
+    reference = np.array([profile.at(x) for x in t])
+    prior = learned_records.find(cfg, profile, full_records) if use_learned else None
+    if prior is not None:
+        ff, _ = learned_records.demand_source(prior[0])
+        say(f"learning from the learned feedforward {prior[1]}")
+    else:
+        ff, _ = run_svc.demand_source(cfg, full_records)
+    initial = np.array([ff(profile, x) for x in t])
+    motor = next((r for r in full_records if r.get("sensor") == "motor"), None)
+    filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None
+            else ilc.LearningFilter.default(hz, cfg.loop.advance_s, factor))
+    # the load cell's noise (1 sigma, N): the simulated one, else the data sheet's 0.67 N
+    # error bound taken as 3 sigma
+    noise = cfg.sim.load_cell_noise_n if cfg.backend == "sim" else 0.67 / 3
+    learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise)
+    filt_meta = {"gain_n_per_n": filt.gain, "lead_cycles": filt.lead,
+                 "q_cutoff_hz": filt.q_cutoff_hz, "source": filt.source}
+    say(f"learning {profile.name} over up to {n} trials; learning filter: gain "
+        f"{filt.gain:.3f} N/N, lead {filt.lead} cycles, Q {filt.q_cutoff_hz:g} Hz, {filt.source}")
+    out = Path(out) if out is not None else run_svc._default_path(cfg, profile)
+    runs: list[Path] = []
+    stopped: str | None = None
+    say(table(["trial", "max error %", "RMS error %", "run file"]))
+    try:
+        for k in range(n):
+            path = out.with_name(f"{out.stem}-learn{k + 1}{out.suffix or '.h5'}")
+            candidate = learned_records.build(
+                cfg, profile, full_records, learner.u, list(learner.history),
+                learner.history[-1] if learner.history else {}, filt_meta,
+                f"learning trial {k + 1} of {n}")
+            rep = run_svc.run(profile_path, cfg, out=path, lockstep=lockstep,
+                              learned=candidate)
+            runs.append(rep.path)
+            if not rep.complete:
+                stopped = f"trial {k + 1} {rep.status}; kept what was learned before it"
+                break
+            err = learner.update(measured_force(rep.path, t.size))
+            say(table([f"{k + 1:5d}", f"{err['max_pct']:11.2f}", f"{err['rms_pct']:11.2f}",
+                       str(rep.path)]))
+            if learner.stopped:
+                stopped = learner.stopped
+                break
+    except KeyboardInterrupt:
+        stopped = "interrupted (Ctrl-C); kept what was learned so far"
+    if stopped:
+        say(f"learning stopped: {stopped}")
+    if learner.best is None:
+        say("nothing learned: no learning trial completed")
+        return LearnReport(None, None, learner.history, runs, stopped)
+    best_u, best = learner.result()
+    rec = learned_records.build(cfg, profile, full_records, best_u, learner.history, best,
+                                filt_meta, stopped, created=_dt.datetime.now(_dt.UTC))
+    rpath = learned_records.write(cfg, rec)
+    say(f"learned feedforward: trial {int(best['trial'])}, max error {best['max_pct']:.2f} %, "
+        f"RMS {best['rms_pct']:.2f} % of the peak; record {rpath}")
+    return LearnReport(rec, rpath, learner.history, runs, stopped)
