@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
 from rig import profiles as _profiles
 from rig.model import assembly
@@ -445,6 +444,8 @@ class ActionModel:
             ws[k.WS_EXTRA][:] = 0.0
             return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
 
+        from scipy.optimize import least_squares  # (lazy: 0.7 s of import, rarely needed)
+
         sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
                             x_scale=1e-3)
         out = y.copy()
@@ -510,6 +511,8 @@ class ActionModel:
         if not lift_acceleration(lo) < 0 < lift_acceleration(hi):
             raise ValueError("contacts.14: the balance rail cannot hold the key at rest "
                              "within 10 mm of its given height")
+        from scipy.optimize import brentq
+
         offset = float(brentq(lift_acceleration, lo, hi, xtol=1e-14, rtol=1e-12))
         arrays[2][row, side, k.C_Y] = base + offset
         return offset, self._polish(y, arrays)
