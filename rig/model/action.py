@@ -29,6 +29,7 @@ import numpy as np
 from rig import profiles as _profiles
 from rig.model import assembly
 from rig.model import kernel as k
+from rig.model import restcache
 from rig.model.effects import Build, Effect, make
 from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator, by_name
 from rig.params import Parameters, load_yaml_file
@@ -408,9 +409,21 @@ class ActionModel:
         if self._rest is None and self.equations_key in _REST_CACHE:
             self._rest = _REST_CACHE[self.equations_key].copy()
         if self._rest is None:
-            self._rest = self._polish(self._settle())
+            disk = self._disk_key("rest", self.equations_key)
+            rest = restcache.load(disk, self.n_state)  # (settled by an earlier process)
+            if rest is None:
+                rest = self._polish(self._settle())
+                restcache.store(disk, rest)
+            self._rest = rest
             _remember(_REST_CACHE, self.equations_key, self._rest.copy())
         return self._rest.copy()
+
+    def _disk_key(self, kind: str, equations: bytes) -> str:
+        """The on-disk cache's key: the equations, starting state, tolerances, integrator."""
+        i = self.integrator  # (settles the action only when effects run in Python)
+        settle = (f"{i.name} {getattr(i, 'rtol', '')} {getattr(i, 'max_step', '')}"
+                  if self.python_forces else "")
+        return restcache.key(kind, [equations, self._table_state(), self.atol, settle])
 
     def _settle(self, arrays: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
         """The state after 0.4 s under gravity from Table 3.2 (friction and damping remove
@@ -474,7 +487,14 @@ class ActionModel:
         side = sides[0]
         key = self._digest()
         if key not in _RAIL_CACHE:
-            _remember(_RAIL_CACHE, key, self._solve_rail(row, side))
+            disk = self._disk_key(f"rail{row},{side}", key)
+            stored = restcache.load(disk, 1 + self.n_state)
+            if stored is None:
+                offset, rest = self._solve_rail(row, side)
+                restcache.store(disk, np.r_[offset, rest])
+            else:
+                offset, rest = float(stored[0]), stored[1:].copy()
+            _remember(_RAIL_CACHE, key, (offset, rest))
         offset, rest = _RAIL_CACHE[key]
         solved = [a.copy() for a in self.packed.arrays]
         solved[2][row, side, k.C_Y] += offset

@@ -1,0 +1,83 @@
+"""The rest state (and balance-rail placement) cached on disk by content hash (issue 16)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rig.model import action, restcache
+from rig.model.action import ActionModel
+from rig.params import Parameters
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("RIG_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(action, "_REST_CACHE", {})
+    monkeypatch.setattr(action, "_RAIL_CACHE", {})
+    return tmp_path / "rest"
+
+
+def forget() -> None:
+    """What a new process has: no rest state in memory."""
+    action._REST_CACHE.clear()
+    action._RAIL_CACHE.clear()
+
+
+def count_settles(monkeypatch) -> list[int]:
+    calls: list[int] = []
+    real = ActionModel._settle
+
+    def counted(self, arrays=None):
+        calls.append(1)
+        return real(self, arrays)
+
+    monkeypatch.setattr(ActionModel, "_settle", counted)
+    return calls
+
+
+def test_a_new_process_reads_the_rest_state_from_disk(cache, monkeypatch):
+    settles = count_settles(monkeypatch)
+    first = ActionModel().rest_state()
+    assert settles == [1] and len(list(cache.glob("*.npy"))) == 1
+    forget()
+    again = ActionModel().rest_state()
+    assert settles == [1]  # not settled again
+    np.testing.assert_array_equal(again, first)
+
+
+def test_a_changed_parameter_settles_again(cache, monkeypatch):
+    settles = count_settles(monkeypatch)
+    base = ActionModel().rest_state()
+    heavier = ActionModel(Parameters.default().set("bodies.hammer_head.mass", 0.0115)).rest_state()
+    assert settles == [1, 1] and len(list(cache.glob("*.npy"))) == 2
+    assert not np.array_equal(base, heavier)
+
+
+def test_a_damaged_entry_is_recomputed(cache, monkeypatch):
+    first = ActionModel().rest_state()
+    (entry,) = cache.glob("*.npy")
+    entry.write_bytes(b"\x93NUMPY garbage")
+    forget()
+    settles = count_settles(monkeypatch)
+    np.testing.assert_allclose(ActionModel().rest_state(), first, rtol=0, atol=1e-12)
+    assert settles == [1]
+
+
+def test_the_disk_cache_can_be_switched_off(tmp_path, monkeypatch):
+    monkeypatch.setenv("RIG_CACHE_DIR", "")
+    assert restcache.folder() is None
+    monkeypatch.setattr(action, "_REST_CACHE", {})
+    ActionModel().rest_state()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_balance_rail_placement_is_cached_too(cache, monkeypatch):
+    first = ActionModel(effects=["key_liftoff"])
+    rest = first.rest_state()
+    forget()
+    settles = count_settles(monkeypatch)
+    again = ActionModel(effects=["key_liftoff"])
+    assert settles == []  # neither the rail nor the rest state settled again
+    assert again.balance_rail == first.balance_rail
+    np.testing.assert_array_equal(again.rest_state(), rest)
