@@ -13,9 +13,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 # what no light command needs: numerical libraries simulate does not use, plotting,
 # the analysis package, the rig's hardware and service layers
-NOT_FOR_SIMULATE = ("scipy.optimize", "scipy.integrate", "scipy.signal", "matplotlib", "plotly", "pandas",
-                    "xarray", "SALib", "rig.analysis", "rig.sim_backend", "rig.services.run",
-                    "rig.services.diagnose", "rig.calibration", "nidaqmx", "serial")
+NOT_FOR_SIMULATE = ("scipy.optimize", "scipy.integrate", "scipy.signal", "matplotlib",
+                    "plotly", "pandas", "xarray", "SALib", "rig.analysis", "rig.sim_backend",
+                    "rig.services.run", "rig.services.diagnose", "rig.calibration",
+                    "nidaqmx", "serial")
 NOT_FOR_LIGHT = NOT_FOR_SIMULATE + ("numba", "scipy", "rig.model", "rig.services.simulate")
 
 _PROBE = """

@@ -27,9 +27,8 @@ from typing import Any
 import numpy as np
 
 from rig import profiles as _profiles
-from rig.model import assembly
+from rig.model import assembly, restcache
 from rig.model import kernel as k
-from rig.model import restcache
 from rig.model.effects import Build, Effect, make
 from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator, by_name
 from rig.params import Parameters, load_yaml_file
