@@ -32,19 +32,20 @@ t0 = time.perf_counter()
 from numba.core import event
 records = []
 
+stack = []
+
 class Listener(event.Listener):
     def on_start(self, ev):
-        pass
+        stack.append(time.perf_counter())
 
     def on_end(self, ev):
+        took = time.perf_counter() - stack.pop()
         d = ev.data or {}
         disp = d.get("dispatcher")
         name = getattr(getattr(disp, "py_func", None), "__qualname__", str(disp))
         module = getattr(getattr(disp, "py_func", None), "__module__", "")
-        records.append((module + "." + name, str(d.get("args")), ev.kind))
+        records.append((module + "." + name, took, len(stack)))
 
-timer = {}
-orig_start = event.start_event
 import numba.core.dispatcher as D
 real = D.Dispatcher._compile_for_args
 calls = []
@@ -106,13 +107,10 @@ def main() -> None:
     print("compiled functions called from Python (time includes what each compiles inside):")
     for name, s in data["calls"]:
         print(f"  {name:<60} {s:7.2f} s")
-    counts: dict[str, int] = {}
-    for name, _, _ in data["compiles"]:
-        counts[name] = counts.get(name, 0) + 1
-    print(f"numba compile events: {len(data['compiles'])} in {len(counts)} functions; "
-          "most compiled:")
-    for name, c in sorted(counts.items(), key=lambda kv: -kv[1])[:12]:
-        print(f"  {c:3d} x {name}")
+    print(f"numba compile events ({len(data['compiles'])}), the longest: time including "
+          "nested compiles, nesting depth")
+    for name, took, depth in sorted(data["compiles"], key=lambda r: -r[1])[:10]:
+        print(f"  {took:7.2f} s  depth {depth}  {name}")
 
 
 if __name__ == "__main__":

@@ -81,3 +81,28 @@ def test_the_balance_rail_placement_is_cached_too(cache, monkeypatch):
     assert settles == []  # neither the rail nor the rest state settled again
     assert again.balance_rail == first.balance_rail
     np.testing.assert_array_equal(again.rest_state(), rest)
+
+
+@pytest.mark.parametrize("effects", [[], ["flexible_shank", "key_liftoff"]])
+def test_settling_with_the_models_integrator_gives_the_same_rest(cache, monkeypatch, effects):
+    """A first use compiles only the integrator in use (the rest state settles with the
+    model's Rosenbrock integrator, not dopri54); the polished equilibrium is the same."""
+    from rig.model.integrators import DormandPrince
+
+    real_advance = DormandPrince.advance
+
+    def no_dopri(self, *args, **kwargs):
+        raise AssertionError("the rest state settled with dopri54")
+
+    monkeypatch.setattr(DormandPrince, "advance", no_dopri)
+    own = ActionModel(effects=effects)
+    assert own.integrator.name == "rosenbrock"
+    rest = own.rest_state()
+    forget()
+    monkeypatch.setattr(DormandPrince, "advance", real_advance)
+    monkeypatch.setattr(action, "SETTLE_WITH_OWN_INTEGRATOR", ())
+    monkeypatch.setenv("RIG_CACHE_DIR", "")
+    dopri = ActionModel(effects=effects)
+    np.testing.assert_allclose(rest, dopri.rest_state(), rtol=0, atol=1e-10)
+    assert own.balance_rail == pytest.approx(dopri.balance_rail, abs=1e-12) \
+        if effects else own.balance_rail is None
