@@ -106,3 +106,14 @@ def test_settling_with_the_models_integrator_gives_the_same_rest(cache, monkeypa
     np.testing.assert_allclose(rest, dopri.rest_state(), rtol=0, atol=1e-10)
     assert own.balance_rail == pytest.approx(dopri.balance_rail, abs=1e-12) \
         if effects else own.balance_rail is None
+
+
+def test_the_cache_keeps_a_bounded_number_of_entries(tmp_path, monkeypatch):
+    monkeypatch.setenv("RIG_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(restcache, "MAX_ENTRIES", 8)
+    for i in range(20):
+        restcache.store(restcache.key("test", [str(i)]), np.full(3, float(i)))
+    kept = list((tmp_path / "rest").glob("*.npy"))
+    assert 6 <= len(kept) <= 8
+    newest = restcache.key("test", ["19"])
+    np.testing.assert_array_equal(restcache.load(newest, 3), np.full(3, 19.0))

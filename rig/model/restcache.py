@@ -11,12 +11,14 @@ parameter, effect or kernel never finds a stale entry.
 Location: ``$RIG_CACHE_DIR`` if set (empty: no disk cache), else
 ``$XDG_CACHE_HOME/rig`` or ``~/.cache/rig``; entries are ``rest/<key>.npy``
 (plain arrays, read without pickle), written to a temporary file and renamed
-so readers never see half a file. A missing, unreadable or malformed entry is
+so readers never see half a file; past MAX_ENTRIES files the oldest are
+removed. A missing, unreadable or malformed entry is
 recomputed; an unwritable folder only costs the recomputation.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -26,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+MAX_ENTRIES = 4096  # about 1 MB; beyond it the oldest quarter goes
 _SOURCES = ("kernel.py", "assembly.py", "action.py", "effects.py", "integrators.py",
             "integrators_stiff.py", "restcache.py")
 
@@ -98,5 +101,18 @@ def store(hexkey: str, value: np.ndarray) -> None:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+        _prune(where)
     except OSError:
         pass
+
+
+def _prune(where: Path) -> None:
+    """Keep at most MAX_ENTRIES (a fit writes one per parameter set): drop the oldest."""
+    entries = [e for e in os.scandir(where) if e.name.endswith(".npy")
+               and not e.name.startswith(".")]
+    if len(entries) <= MAX_ENTRIES:
+        return
+    entries.sort(key=lambda e: e.stat().st_mtime)
+    for e in entries[: len(entries) - MAX_ENTRIES * 3 // 4]:
+        with contextlib.suppress(OSError):  # (another process got there first)
+            os.unlink(e.path)
