@@ -117,3 +117,31 @@ def test_the_cache_keeps_a_bounded_number_of_entries(tmp_path, monkeypatch):
     assert 6 <= len(kept) <= 8
     newest = restcache.key("test", ["19"])
     np.testing.assert_array_equal(restcache.load(newest, 3), np.full(3, 19.0))
+
+
+USER_DRAG = '''
+import numpy as np
+from rig.model.effects import Effect
+
+
+class PullOnHammer(Effect):
+    name = "pull_on_hammer"
+    summary = "a constant torque on the hammer (a Python generalized force)"
+
+    def generalized_force(self, t, q, qd):
+        f = np.zeros(9)
+        f[5] = {torque}
+        return f
+'''
+
+
+def test_editing_a_user_effects_force_law_changes_the_key(cache, tmp_path):
+    """The force law of a Python effect is in no packed array: its source file is in the
+    disk key, so an edited law never finds the old rest state."""
+    (tmp_path / "pull.py").write_text(USER_DRAG.format(torque="-1e-4"))
+    model = ActionModel(effects=["pull.py:PullOnHammer"], base_dir=tmp_path)
+    assert model.python_forces
+    before = model._disk_key("rest", model.equations_key)
+    (tmp_path / "pull.py").write_text(USER_DRAG.format(torque="-2e-4"))
+    after = model._disk_key("rest", model.equations_key)
+    assert before is not None and after is not None and before != after

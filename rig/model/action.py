@@ -419,12 +419,17 @@ class ActionModel:
             _remember(_REST_CACHE, self.equations_key, self._rest.copy())
         return self._rest.copy()
 
-    def _disk_key(self, kind: str, equations: bytes) -> str:
-        """The on-disk cache's key: the equations, starting state, tolerances, integrator."""
+    def _disk_key(self, kind: str, equations: bytes) -> str | None:
+        """The on-disk cache's key: the equations, starting state, tolerances, integrator
+        and the source of effects that run in Python (None: not cacheable on disk)."""
         i = self.integrator  # (settles the action only when effects run in Python)
         settle = (f"{i.name} {getattr(i, 'rtol', '')} {getattr(i, 'max_step', '')}"
                   if self.python_forces else "")
-        return restcache.key(kind, [equations, self._table_state(), self.atol, settle])
+        code = [restcache.source_of(type(e)) for e in self.python_forces]
+        if any(c is None for c in code):
+            return None
+        return restcache.key(kind, [equations, self._table_state(), self.atol, settle,
+                                    *(c for c in code if c is not None)])
 
     def _settle(self, arrays: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
         """The state after 0.4 s under gravity from Table 3.2 (friction and damping remove

@@ -4,9 +4,10 @@ Settling the action under gravity and polishing the equilibrium takes about
 0.5 s (and imports scipy.optimize); the result depends only on the model's
 equations (``ActionModel.equations_key``: every packed array, the active
 coordinates, effects that run in Python), the starting state, the tolerances
-and the code that computes it. Those go into a SHA-1 key together with a hash
-of the model's source files and the versions of rig and numpy, so a changed
-parameter, effect or kernel never finds a stale entry.
+and the code that computes it (the model's sources, and the source file of
+each effect that runs in Python: a user's edited force law settles afresh).
+Those go into a SHA-1 key together with the versions of rig and numpy, so a
+changed parameter, effect or kernel never finds a stale entry.
 
 Location: ``$RIG_CACHE_DIR`` if set (empty: no disk cache), else
 ``$XDG_CACHE_HOME/rig`` or ``~/.cache/rig``; entries are ``rest/<key>.npy``
@@ -21,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
+import inspect
 import os
 import tempfile
 from collections.abc import Iterable
@@ -72,10 +74,19 @@ def key(kind: str, parts: Iterable[bytes | np.ndarray | str]) -> str:
     return h.hexdigest()
 
 
-def load(hexkey: str, size: int) -> np.ndarray | None:
+def source_of(cls: type) -> bytes | None:
+    """The source file of a class (a user effect's force law is in no other key), or None."""
+    try:
+        path = inspect.getsourcefile(cls)
+        return Path(path).read_bytes() if path else None
+    except (OSError, TypeError):
+        return None
+
+
+def load(hexkey: str | None, size: int) -> np.ndarray | None:
     """The stored float vector of ``size`` values, or None (absent or malformed)."""
     where = folder()
-    if where is None:
+    if where is None or hexkey is None:
         return None
     try:
         arr = np.load(where / f"{hexkey}.npy", allow_pickle=False)
@@ -86,10 +97,10 @@ def load(hexkey: str, size: int) -> np.ndarray | None:
     return arr
 
 
-def store(hexkey: str, value: np.ndarray) -> None:
+def store(hexkey: str | None, value: np.ndarray) -> None:
     """Write the vector atomically; failures (read-only home, full disk) are ignored."""
     where = folder()
-    if where is None:
+    if where is None or hexkey is None:
         return
     try:
         where.mkdir(parents=True, exist_ok=True)
