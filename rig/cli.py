@@ -45,7 +45,7 @@ def simulate(
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn(
                 "{task.fields[sim]}"), TimeElapsedColumn(), console=console,
                 transient=True) as bar:
-            task = bar.add_task("preparing the model (compiled once, ~30 s on first use)",
+            task = bar.add_task("preparing the model (compiled on first use: about a minute)",
                                 total=None, sim="")
             m = svc.build_model(model, effect or [], params, integrator, output_rate)
 

@@ -13,6 +13,7 @@ its id), ``bodies.key.mass``, ``joint_friction.hammer.E``.
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from collections.abc import Iterator, Mapping
 from importlib import resources
@@ -65,7 +66,12 @@ def load_yaml_file(path: str | Path, max_bytes: int | None = None) -> Any:
     return _load_yaml_text(read_text_file(p, max_bytes), str(p))
 
 
-def _defaults() -> dict[str, Any]:
+DEFAULT = "default"  # a value that sets a parameter back to its thesis/chosen default
+
+
+@functools.cache
+def _parsed_defaults() -> dict[str, Any]:
+    """The two package YAML files, parsed once per process (callers copy the tree)."""
     base = _load_yaml_text((_DATA / "action-parameters.yaml").read_text("utf-8"), "thesis params")
     chosen = _load_yaml_text((_DATA / "chosen-parameters.yaml").read_text("utf-8"), "chosen")
     for key, value in chosen.items():
@@ -73,6 +79,10 @@ def _defaults() -> dict[str, Any]:
             raise RuntimeError(f"chosen-parameters.yaml redefines thesis key {key!r}")
         base[key] = value
     return base
+
+
+def _defaults() -> dict[str, Any]:
+    return copy.deepcopy(_parsed_defaults())
 
 
 def _is_number(value: Any) -> bool:
@@ -95,12 +105,7 @@ class Parameters:
         """Defaults overridden by the YAML mapping in ``path`` (if given)."""
         params = cls()
         if path is not None:
-            data = load_yaml_file(path)
-            if data is None:
-                return params
-            if not isinstance(data, Mapping):
-                raise ValueError(f"{path}: expected a mapping of parameter overrides")
-            params.update(data, source=str(path))
+            params.update_from_file(path)
         return params
 
     def copy(self) -> Parameters:
@@ -155,10 +160,17 @@ class Parameters:
         node, key = self._locate(path)
         return node[key]
 
-    def set(self, path: str, value: Any) -> None:
-        """Set an existing numeric parameter; refuses unknown paths and non-numbers."""
+    def set(self, path: str, value: Any) -> Parameters:
+        """Set an existing numeric parameter; refuses unknown paths and non-numbers.
+
+        The value ``"default"`` sets the parameter back to its thesis (or chosen)
+        default. Returns the parameters, so calls chain.
+        """
         node, key = self._locate(path)
         old = node[key]
+        if isinstance(value, str) and value.strip().lower() == DEFAULT:
+            node[key] = copy.deepcopy(Parameters(_parsed_defaults()).get(path))
+            return self
         if _is_number(old):
             if not _is_number(value) or not math.isfinite(float(value)):
                 raise ValueError(f"parameter {path!r}: expected a finite number, got {value!r}")
@@ -175,14 +187,29 @@ class Parameters:
             node[key] = value
         else:
             raise ValueError(f"parameter {path!r}: is a group, set its members instead")
+        return self
 
-    def update(self, overrides: Mapping[str, Any], source: str = "overrides") -> None:
-        """Apply a nested mapping of overrides (contacts keyed by id)."""
+    def update(self, overrides: Mapping[str, Any], source: str = "overrides") -> Parameters:
+        """Apply a nested mapping of overrides (contacts keyed by id); returns self."""
         for path, value in _flatten(overrides):
             try:
                 self.set(path, value)
             except ValueError as exc:
                 raise ValueError(f"{source}: {exc}") from None
+        return self
+
+    def update_from_file(self, path: str | Path) -> Parameters:
+        """Apply the overrides in the YAML file ``path`` to this tree; returns self.
+
+        Only the values the file names change (``default`` restores one); an
+        empty file changes nothing.
+        """
+        data = load_yaml_file(path)
+        if data is None:
+            return self
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{path}: expected a mapping of parameter overrides")
+        return self.update(data, source=str(path))
 
     def paths(self) -> Iterator[str]:
         """Every numeric leaf's dotted path."""

@@ -12,6 +12,14 @@ from rig.model.action import ActionModel, SimResult
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _rest_cache(tmp_path_factory):
+    """The on-disk rest-state cache in a session folder, not the user's ~/.cache."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("RIG_CACHE_DIR", str(tmp_path_factory.mktemp("rig-cache")))
+        yield
+
+
 @pytest.fixture(scope="session")
 def forte() -> profiles.Profile:
     return profiles.load(ROOT / "profiles" / "forte.yaml")

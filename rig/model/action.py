@@ -25,10 +25,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
 from rig import profiles as _profiles
-from rig.model import assembly
+from rig.model import assembly, restcache
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
 from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator, by_name
@@ -101,6 +100,8 @@ _REST_CACHE: dict[bytes, np.ndarray] = {}
 # balance-rail placements (offset m, rest state) by the equations before placement
 _RAIL_CACHE: dict[bytes, tuple[float, np.ndarray]] = {}
 KEY_MOVE_THRESHOLD_M = 2e-5
+# integrators the rest state settles with when the model uses them (others: dopri54)
+SETTLE_WITH_OWN_INTEGRATOR = ("rosenbrock", "dopri54")
 HEAD_STRIKE_POINT = "Phh3"
 
 
@@ -409,16 +410,35 @@ class ActionModel:
         if self._rest is None and self.equations_key in _REST_CACHE:
             self._rest = _REST_CACHE[self.equations_key].copy()
         if self._rest is None:
-            self._rest = self._polish(self._settle())
+            disk = self._disk_key("rest", self.equations_key)
+            rest = restcache.load(disk, self.n_state)  # (settled by an earlier process)
+            if rest is None:
+                rest = self._polish(self._settle())
+                restcache.store(disk, rest)
+            self._rest = rest
             _remember(_REST_CACHE, self.equations_key, self._rest.copy())
         return self._rest.copy()
+
+    def _disk_key(self, kind: str, equations: bytes) -> str | None:
+        """The on-disk cache's key: the equations, starting state, tolerances, integrator
+        and the source of effects that run in Python (None: not cacheable on disk)."""
+        i = self.integrator  # (settles the action only when effects run in Python)
+        settle = (f"{i.name} {getattr(i, 'rtol', '')} {getattr(i, 'max_step', '')}"
+                  if self.python_forces else "")
+        code = [restcache.source_of(type(e)) for e in self.python_forces]
+        if any(c is None for c in code):
+            return None
+        return restcache.key(kind, [equations, self._table_state(), self.atol, settle,
+                                    *(c for c in code if c is not None)])
 
     def _settle(self, arrays: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
         """The state after 0.4 s under gravity from Table 3.2 (friction and damping remove
         the energy), velocities zeroed."""
         extra = self.extra_force()
-        integ = self.integrator if extra is not None else DormandPrince(rtol=1e-6,
-                                                                         max_step=1e-3)
+        # the model's own integrator where it is the default compiled one: a first use then
+        # compiles one integrator, not two (the polish below makes the result the same)
+        own = extra is not None or self.integrator.name in SETTLE_WITH_OWN_INTEGRATOR
+        integ = self.integrator if own else DormandPrince(rtol=1e-6, max_step=1e-3)
         adv = integ.advance(arrays or self.packed.arrays, self._workspace(), self._table_state(),
                             0.0, 0.4, 1e-5, np.zeros(1), np.zeros(1), np.zeros(0), self.atol,
                             extra)
@@ -444,6 +464,8 @@ class ActionModel:
             k.rhs(0.0, yy, 0.0, arrays, ws, dy)
             ws[k.WS_EXTRA][:] = 0.0
             return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
+
+        from scipy.optimize import least_squares  # (lazy: 0.7 s of import, rarely needed)
 
         sol = least_squares(residual, y[idx], xtol=1e-14, ftol=1e-14, gtol=1e-14,
                             x_scale=1e-3)
@@ -473,7 +495,14 @@ class ActionModel:
         side = sides[0]
         key = self._digest()
         if key not in _RAIL_CACHE:
-            _remember(_RAIL_CACHE, key, self._solve_rail(row, side))
+            disk = self._disk_key(f"rail{row},{side}", key)
+            stored = restcache.load(disk, 1 + self.n_state)
+            if stored is None:
+                offset, rest = self._solve_rail(row, side)
+                restcache.store(disk, np.r_[offset, rest])
+            else:
+                offset, rest = float(stored[0]), stored[1:].copy()
+            _remember(_RAIL_CACHE, key, (offset, rest))
         offset, rest = _RAIL_CACHE[key]
         solved = [a.copy() for a in self.packed.arrays]
         solved[2][row, side, k.C_Y] += offset
@@ -510,6 +539,8 @@ class ActionModel:
         if not lift_acceleration(lo) < 0 < lift_acceleration(hi):
             raise ValueError("contacts.14: the balance rail cannot hold the key at rest "
                              "within 10 mm of its given height")
+        from scipy.optimize import brentq
+
         offset = float(brentq(lift_acceleration, lo, hi, xtol=1e-14, rtol=1e-12))
         arrays[2][row, side, k.C_Y] = base + offset
         return offset, self._polish(y, arrays)

@@ -113,10 +113,13 @@ class Effect:
             self.set(key, value)
 
     def set(self, key: str, value: Any) -> None:
-        """Set a parameter, checking it is a finite number within its bounds."""
+        """Set a parameter, checking it is a finite number within its bounds
+        (``"default"`` sets the library's default)."""
         spec = {p.name: p for p in self.parameters}.get(key)
         if spec is None:
             raise ValueError(f"effect {self.name}: unknown parameter {key!r}")
+        if isinstance(value, str) and value.strip().lower() == "default":
+            value = spec.default  # the library's default back, explicitly
         if isinstance(value, bool) or not isinstance(value, int | float) \
                 or not math.isfinite(float(value)):
             raise ValueError(f"effect {self.name}: parameter {key!r}: expected a finite number "

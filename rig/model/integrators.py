@@ -22,7 +22,6 @@ from typing import Protocol
 
 import numpy as np
 from numba import njit
-from scipy.integrate import solve_ivp
 
 from rig.model import kernel as k
 
@@ -362,6 +361,8 @@ class ScipyIntegrator:
                 dy[k.NY :] = dz
             k.rhs(t, y, force_at(t, force_t, force_f, hint), model, ws, dy)
             return dy.copy()
+
+        from scipy.integrate import solve_ivp  # (lazy: only reference runs use it)
 
         sol = solve_ivp(fun, (t0, t1), y0, method=self.method, rtol=self.rtol, atol=atol,
                         max_step=self.max_step, dense_output=True, first_step=min(step, t1 - t0))

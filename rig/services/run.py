@@ -236,6 +236,9 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         metadata["learned_feedforward"] = learned
 
     cpu = loop_cpu(cfg, say)
+    if cfg.backend == "sim":  # (seconds of silence otherwise: say what the start is doing)
+        say("building the simulated rig's action model ..." if lockstep or not cfg.sim.realtime
+            else "starting the simulated rig's process (it builds the action model) ...")
     daq = open_daq(cfg, lockstep=lockstep, on_line=say)
     sim_drive = None
     ctx = mp.get_context("spawn")
@@ -267,8 +270,10 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
             daq.reader_spec(), cfg.model_dump(mode="json"),
             {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))
+        say("starting the acquisition process ...")
         proc.start()
         _expect(status_q, proc, "ready", cfg.acquisition.start_timeout_s)
+        say("enabling the drive and arming the acquisition ...")
         for k in range(trials):
             ctrl.put(("trial", k, k * per_trial * spc, (k * per_trial + settle) * spc))
         drive.enable()

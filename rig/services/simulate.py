@@ -15,14 +15,9 @@ def build_model(model_file: Path | None, effects: Sequence[str] = (),
     """The model from a model YAML, extra effects, a parameter file and options."""
     model = ActionModel.from_yaml(model_file, effects=effects, integrator=integrator)
     if params_file is not None or output_rate is not None:
-        from rig.params import Parameters
-
-        params = model.params
+        params = model.params  # the model's own tree (after its model YAML), parsed once
         if params_file is not None:
-            overrides = Parameters.from_file(params_file)
-            for path in overrides.paths():
-                if overrides.get(path) != Parameters.default().get(path):
-                    params.set(path, overrides.get(path))
+            params.update_from_file(params_file)  # only what the file names; `default` restores
         model = ActionModel(params, model.effects, model.integrator, output_rate=output_rate)
     return model
 
