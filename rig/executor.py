@@ -1,0 +1,168 @@
+"""Where many independent evaluations run: local processes or a Dask cluster.
+
+    ex = executor_for(jobs=4)                       # forked local processes
+    ex = executor_for(scheduler="tcp://lab1:8786")  # a Dask distributed cluster
+    for i, value in ex.map(fn, items, shared=model):
+        results[i] = value                          # as they complete, keyed by index
+
+``fn(shared, item)`` must be a module-level function (or a picklable callable).
+``shared`` (the model, the data) travels once per worker, not once per task:
+local workers are forked after it is set (they inherit it), and on a cluster it
+is scattered to every worker once (``broadcast=True``, keyed by its content
+hash) and each task refers to it. A task whose worker dies is run again
+(``retries``); results are keyed by the item's index, so none is lost or
+reported twice.
+
+The scheduler address comes from ``--scheduler``, else the environment variable
+``RIG_SCHEDULER``; with neither, local processes are used.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from typing import Any
+
+SCHEDULER_ENV = "RIG_SCHEDULER"
+
+# shared objects of the running maps, set before the fork so local workers inherit them
+_SHARED: dict[str, Any] = {}
+
+
+def _local_call(key: str, fn: Callable[[Any, Any], Any], item: Any) -> Any:
+    return fn(_SHARED[key], item)
+
+
+def _dask_call(fn: Callable[[Any, Any], Any], shared: Any, item: Any) -> Any:
+    return fn(shared, item)
+
+
+class Executor:
+    """Runs ``fn(shared, item)`` for every item; yields ``(index, result)`` as they finish."""
+
+    name = "executor"
+    workers = 1
+
+    def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
+            shared: Any = None) -> Iterator[tuple[int, Any]]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the workers (a cluster's client; local pools close after each map)."""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def describe(self) -> str:
+        return self.name
+
+
+class LocalExecutor(Executor):
+    """Forked local processes (``jobs`` of them; 1: in this process, in order)."""
+
+    def __init__(self, jobs: int | None = None) -> None:
+        self.workers = max(1, jobs if jobs is not None else (os.cpu_count() or 1))
+        self.name = f"{self.workers} local process{'es' if self.workers > 1 else ''}"
+
+    def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
+            shared: Any = None) -> Iterator[tuple[int, Any]]:
+        items = list(items)
+        if self.workers <= 1 or len(items) <= 1:
+            for i, item in enumerate(items):
+                yield i, fn(shared, item)
+            return
+        key = uuid.uuid4().hex
+        _SHARED[key] = shared
+        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)),
+                                   mp_context=mp.get_context("fork"))
+        try:
+            futs = {pool.submit(_local_call, key, fn, item): i for i, item in enumerate(items)}
+            for f in as_completed(futs):
+                yield futs[f], f.result()
+        finally:
+            pool.shutdown(cancel_futures=True)
+            _SHARED.pop(key, None)
+
+
+class DaskExecutor(Executor):
+    """Tasks on a Dask distributed cluster at ``address`` (or on a given client)."""
+
+    def __init__(self, address: str | None = None, *, client: Any = None,
+                 retries: int = 3) -> None:
+        from distributed import Client
+
+        if client is None:
+            if not address:
+                raise ValueError("scheduler: expected an address such as tcp://host:8786")
+            try:
+                client = Client(address, timeout="10s")
+            except OSError as exc:
+                raise ValueError(f"scheduler: cannot reach {address}: {exc}") from None
+            self._own = True
+        else:
+            self._own = False
+        self.client = client
+        self.retries = retries
+        self.address = client.scheduler.address
+        self.name = f"Dask cluster at {self.address}"
+
+    @property  # type: ignore[override]
+    def workers(self) -> int:
+        return max(1, sum(w.get("nthreads", 1) for w in
+                          self.client.scheduler_info()["workers"].values()))
+
+    def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
+            shared: Any = None) -> Iterator[tuple[int, Any]]:
+        from distributed import as_completed as dask_completed
+
+        items = list(items)
+        # once per worker, keyed by content: a second map with the same model reuses it
+        shared_f = self.client.scatter(shared, broadcast=True, hash=True)
+        run = uuid.uuid4().hex[:12]
+        futs = {}
+        for i, item in enumerate(items):
+            f = self.client.submit(_dask_call, fn, shared_f, item, key=f"rig-{run}-{i}",
+                                   retries=self.retries, pure=False)
+            futs[f.key] = (i, f)
+        seen: set[int] = set()
+        try:
+            for f in dask_completed([f for _, f in futs.values()]):
+                i = futs[f.key][0]
+                if i in seen:  # pragma: no cover - as_completed yields each future once
+                    continue
+                seen.add(i)
+                value = f.result()
+                f.release()
+                yield i, value
+        finally:
+            for _, f in futs.values():
+                if not f.done():
+                    f.cancel()
+
+    def close(self) -> None:
+        if self._own:
+            self.client.close()
+
+
+def executor_for(jobs: int | None = None, scheduler: str | None = None) -> Executor:
+    """A Dask executor when a scheduler is given (or in ``RIG_SCHEDULER``), else local."""
+    address = scheduler or os.environ.get(SCHEDULER_ENV) or None
+    if address:
+        return DaskExecutor(address)
+    return LocalExecutor(jobs)
+
+
+def run_all(ex: Executor, fn: Callable[[Any, Any], Any], items: Iterable[Any], *,
+            shared: Any = None) -> list[Any]:
+    """Every result, in the items' order."""
+    items = list(items)
+    out: list[Any] = [None] * len(items)
+    for i, v in ex.map(fn, items, shared=shared):
+        out[i] = v
+    return out
