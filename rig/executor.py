@@ -19,6 +19,7 @@ The scheduler address comes from ``--scheduler``, else the environment variable
 
 from __future__ import annotations
 
+import hashlib
 import multiprocessing as mp
 import os
 import uuid
@@ -109,8 +110,22 @@ class DaskExecutor(Executor):
             self._own = False
         self.client = client
         self.retries = retries
+        self._scattered: dict[str, Any] = {}
         self.address = client.scheduler.address
         self.name = f"Dask cluster at {self.address}"
+
+    def _scatter(self, shared: Any) -> Any:
+        """``shared`` on every worker once, keyed by its content hash: later maps with the
+        same content (a fit's Jacobian columns) reuse the copy the workers hold. Kept
+        until ``close`` (releasing and re-scattering one key races in the scheduler)."""
+        import cloudpickle
+
+        digest = hashlib.sha256(cloudpickle.dumps(shared)).hexdigest()
+        fut = self._scattered.get(digest)
+        if fut is None:
+            fut = self.client.scatter([shared], broadcast=True, hash=False)[0]
+            self._scattered[digest] = fut
+        return fut
 
     @property  # type: ignore[override]
     def workers(self) -> int:
@@ -122,8 +137,7 @@ class DaskExecutor(Executor):
         from distributed import as_completed as dask_completed
 
         items = list(items)
-        # once per worker, keyed by content: a second map with the same model reuses it
-        shared_f = self.client.scatter(shared, broadcast=True, hash=True)
+        shared_f = self._scatter(shared)
         run = uuid.uuid4().hex[:12]
         futs = {}
         for i, item in enumerate(items):
@@ -146,6 +160,9 @@ class DaskExecutor(Executor):
                     f.cancel()
 
     def close(self) -> None:
+        for fut in self._scattered.values():
+            fut.release()
+        self._scattered.clear()
         if self._own:
             self.client.close()
 
