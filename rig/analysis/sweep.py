@@ -261,22 +261,36 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
         f.flush()
         n = 0
         flushed = time.perf_counter()
+        pending: dict[int, Sequence[float]] = {}
+
+        def write_pending() -> None:
+            if not pending:
+                return
+            rows = np.array(sorted(pending))
+            vals = np.array([[float(v) for v in pending[int(i)]] for i in rows])
+            for c, m in enumerate(study.metrics):
+                t[m.name][rows] = vals[:, c]
+            t["done"][rows] = 1
+            pending.clear()
+            f.flush()
+
         status = "interrupted"
         try:
             for j, values in executor.map(study.fn, [X[i] for i in todo], shared=study.shared):
-                i = int(todo[j])
-                for m, v in zip(study.metrics, values, strict=True):
-                    t[m.name][i] = float(v)
-                t["done"][i] = 1
+                if len(values) != len(study.metrics):
+                    raise ValueError(f"the blow returned {len(values)} values for "
+                                     f"{len(study.metrics)} metrics")
+                pending[int(todo[j])] = values
                 n += 1
                 if time.perf_counter() - flushed >= FLUSH_S:
-                    f.flush()
+                    write_pending()
                     flushed = time.perf_counter()
                 if progress is not None:
                     el = time.perf_counter() - t0
                     progress(reused + n, X.shape[0], el / n * (len(todo) - n))
             status = "complete"
         finally:
+            write_pending()
             f.attrs["status"] = status
             f.attrs["evaluated_last_run"] = n
             f.flush()
