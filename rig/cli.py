@@ -549,6 +549,7 @@ def sweep_cmd(
     resume: Annotated[bool, typer.Option(help="continue an interrupted sweep in --out")] = False,
     force: Annotated[bool, typer.Option(help="replace an existing --out / --report")] = False,
     report: Annotated[Path | None, typer.Option(help="write the indices as HTML here")] = None,
+    batch: Annotated[int, typer.Option(help="blows per task sent to a worker")] = 1,
 ) -> None:
     """Blows over parameter ranges: per-blow metrics and Sobol sensitivity indices."""
     import sys
@@ -567,7 +568,8 @@ def sweep_cmd(
     try:
         res, sens = svc.sweep(model, profile, param, out, design=design, samples=samples,
                               seed=seed, duration=duration, scheduler=scheduler, jobs=jobs,
-                              resume=resume, force=force, report=report, progress=progress)
+                              resume=resume, force=force, report=report, batch=batch,
+                              progress=progress)
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
     console.print(f"{res.rows} blows: {res.computed} computed, {res.reused} already in {out} "

@@ -45,7 +45,11 @@ class Executor:
     """Runs ``fn(shared, item)`` for every item; yields ``(index, result)`` as they finish."""
 
     name = "executor"
-    workers = 1
+
+    @property
+    def workers(self) -> int:
+        """How many tasks run at once."""
+        return 1
 
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
             shared: Any = None) -> Iterator[tuple[int, Any]]:
@@ -68,8 +72,12 @@ class LocalExecutor(Executor):
     """Forked local processes (``jobs`` of them; 1: in this process, in order)."""
 
     def __init__(self, jobs: int | None = None) -> None:
-        self.workers = max(1, jobs if jobs is not None else (os.cpu_count() or 1))
-        self.name = f"{self.workers} local process{'es' if self.workers > 1 else ''}"
+        self._workers = max(1, jobs if jobs is not None else (os.cpu_count() or 1))
+        self.name = f"{self._workers} local process{'es' if self._workers > 1 else ''}"
+
+    @property
+    def workers(self) -> int:
+        return self._workers
 
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
             shared: Any = None) -> Iterator[tuple[int, Any]]:
@@ -127,7 +135,7 @@ class DaskExecutor(Executor):
             self._scattered[digest] = fut
         return fut
 
-    @property  # type: ignore[override]
+    @property
     def workers(self) -> int:
         return max(1, sum(w.get("nthreads", 1) for w in
                           self.client.scheduler_info()["workers"].values()))

@@ -10,7 +10,6 @@ import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -99,10 +98,15 @@ def test_dask_sweep_equals_local_processes(cluster, tmp_path):
     sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, a, LocalExecutor(2))
     with DaskExecutor(client=client) as ex:
         sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, b, ex)
-    ta, tb = sw.load_table(a), sw.load_table(b)
-    assert set(ta) == set(tb)
+    c = tmp_path / "dask-batched.h5"
+    with DaskExecutor(client=client) as ex:
+        res = sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, c, ex, batch=7)
+    assert res.computed == 64 * 5
+    ta, tb, tc = sw.load_table(a), sw.load_table(b), sw.load_table(c)
+    assert set(ta) == set(tb) == set(tc)
     for k in ta:
         np.testing.assert_array_equal(ta[k], tb[k])
+        np.testing.assert_array_equal(ta[k], tc[k])
     assert tb["done"].all()
 
 

@@ -232,9 +232,15 @@ def _create(path: Path, study: Study, axes: Sequence[Axis], kind: str, samples: 
 
 def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: Path,
               executor: Executor, *, seed: int = 0, resume: bool = False, force: bool = False,
+              batch: int = 1,
               progress: Callable[[int, int, float], None] | None = None) -> SweepResult:
-    """Evaluate every design row not yet done and write it to ``out`` as it arrives."""
+    """Evaluate every design row not yet done and write it to ``out`` as it arrives.
+
+    ``batch`` rows go to a worker as one task (fewer round trips when a blow is short
+    compared with a task's overhead; see benchmarks/sweep.py)."""
     out = Path(out)
+    if batch < 1:
+        raise ValueError(f"batch: expected at least 1, got {batch}")
     X = make_design(kind, axes, samples, seed)
     ident = _identity(study, axes, kind, samples, seed)
     if out.exists() and resume:
@@ -276,12 +282,21 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
 
         status = "interrupted"
         try:
-            for j, values in executor.map(study.fn, [X[i] for i in todo], shared=study.shared):
-                if len(values) != len(study.metrics):
-                    raise ValueError(f"the blow returned {len(values)} values for "
-                                     f"{len(study.metrics)} metrics")
-                pending[int(todo[j])] = values
-                n += 1
+            if batch > 1:
+                groups = [todo[k:k + batch] for k in range(0, len(todo), batch)]
+                results = executor.map(_batch_call, [X[g] for g in groups],
+                                       shared=(study.fn, study.shared))
+            else:
+                groups = [todo[k:k + 1] for k in range(len(todo))]
+                results = ((j, [v]) for j, v in executor.map(
+                    study.fn, [X[i] for i in todo], shared=study.shared))
+            for j, batch_values in results:
+                for i, values in zip(groups[j], batch_values, strict=True):
+                    if len(values) != len(study.metrics):
+                        raise ValueError(f"the blow returned {len(values)} values for "
+                                         f"{len(study.metrics)} metrics")
+                    pending[int(i)] = values
+                    n += 1
                 if time.perf_counter() - flushed >= FLUSH_S:
                     write_pending()
                     flushed = time.perf_counter()
@@ -295,6 +310,11 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
             f.attrs["evaluated_last_run"] = n
             f.flush()
     return SweepResult(out, X.shape[0], n, reused, time.perf_counter() - t0)
+
+
+def _batch_call(shared: Any, xs: np.ndarray) -> list[Sequence[float]]:
+    fn, inner = shared
+    return [fn(inner, x) for x in xs]
 
 
 def load_table(path: Path) -> dict[str, np.ndarray]:
