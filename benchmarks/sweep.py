@@ -66,7 +66,8 @@ def main() -> None:
             return wall
 
         run("1 local process", LocalExecutor(1), 1)
-        run("2 local processes", LocalExecutor(2), 2)
+        with LocalExecutor(2) as lx:
+            run("2 local processes", lx, 2)
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                           host="127.0.0.1", dashboard_address=None) as lc, \
                 Client(lc) as client, DaskExecutor(client=client) as ex:

@@ -56,7 +56,7 @@ class Executor:
         raise NotImplementedError
 
     def close(self) -> None:
-        """Release the workers (a cluster's client; local pools close after each map)."""
+        """Release the workers (local processes; a cluster's shared data and client)."""
 
     def __enter__(self) -> Executor:
         return self
@@ -69,34 +69,60 @@ class Executor:
 
 
 class LocalExecutor(Executor):
-    """Forked local processes (``jobs`` of them; 1: in this process, in order)."""
+    """Forked local processes (``jobs`` of them; 1: in this process, in order).
+
+    The workers are forked when a map's ``shared`` is set and inherit it; later maps
+    with the same ``shared`` object (a fit's Jacobian columns) reuse them until
+    ``close``; a map with another ``shared`` forks fresh workers."""
 
     def __init__(self, jobs: int | None = None) -> None:
         self._workers = max(1, jobs if jobs is not None else (os.cpu_count() or 1))
         self.name = f"{self._workers} local process{'es' if self._workers > 1 else ''}"
+        self._pool: ProcessPoolExecutor | None = None
+        self._key = ""
+        self._shared: Any = None
 
     @property
     def workers(self) -> int:
         return self._workers
 
+    def _pool_for(self, shared: Any, n: int) -> tuple[ProcessPoolExecutor, str]:
+        if self._pool is not None and self._shared is shared:
+            return self._pool, self._key
+        self.close()
+        self._key = uuid.uuid4().hex
+        self._shared = shared
+        _SHARED[self._key] = shared
+        self._pool = ProcessPoolExecutor(max_workers=min(self._workers, n),
+                                         mp_context=mp.get_context("fork"))
+        return self._pool, self._key
+
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
             shared: Any = None) -> Iterator[tuple[int, Any]]:
         items = list(items)
-        if self.workers <= 1 or len(items) <= 1:
+        if self._workers <= 1 or len(items) <= 1:
             for i, item in enumerate(items):
                 yield i, fn(shared, item)
             return
-        key = uuid.uuid4().hex
-        _SHARED[key] = shared
-        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(items)),
-                                   mp_context=mp.get_context("fork"))
+        pool, key = self._pool_for(shared, len(items))
+        futs = {pool.submit(_local_call, key, fn, item): i for i, item in enumerate(items)}
+        ok = False
         try:
-            futs = {pool.submit(_local_call, key, fn, item): i for i, item in enumerate(items)}
             for f in as_completed(futs):
                 yield futs[f], f.result()
+            ok = True
         finally:
-            pool.shutdown(cancel_futures=True)
-            _SHARED.pop(key, None)
+            if not ok:  # interrupted or failed: drop the queued tasks and the workers
+                for f in futs:
+                    f.cancel()
+                self.close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+        _SHARED.pop(self._key, None)
+        self._shared = None
 
 
 class DaskExecutor(Executor):

@@ -79,7 +79,8 @@ def test_ishigami_sobol_indices_match_the_analytic_values(tmp_path):
 def test_executor_maps_each_item_once_locally_and_on_the_cluster(cluster):
     _, client = cluster
     items = list(range(40))
-    local = run_all(LocalExecutor(2), _square_plus, items, shared=3)
+    with LocalExecutor(2) as lx:
+        local = run_all(lx, _square_plus, items, shared=3)
     with DaskExecutor(client=client) as ex:
         seen = [i for i, _ in ex.map(_square_plus, items, shared=3)]
         remote = run_all(ex, _square_plus, items, shared=3)
@@ -91,11 +92,30 @@ def _square_plus(shared, x):
     return x * x + shared
 
 
+def _pid_plus(shared, x):
+    return os.getpid(), x + shared[0]
+
+
+def test_local_executor_forks_once_per_shared_object():
+    """Maps with the same shared object (a fit's Jacobian columns) reuse the forked
+    workers; another shared object gets fresh workers that see it."""
+    s1, s2 = [10], [20]
+    with LocalExecutor(2) as ex:
+        a = run_all(ex, _pid_plus, range(6), shared=s1)
+        b = run_all(ex, _pid_plus, range(6), shared=s1)
+        c = run_all(ex, _pid_plus, range(6), shared=s2)
+    pa, pb, pc = ({p for p, _ in r} for r in (a, b, c))
+    assert [v for _, v in a] == [v for _, v in b] == [10 + i for i in range(6)]
+    assert [v for _, v in c] == [20 + i for i in range(6)]
+    assert os.getpid() not in pa and pb <= pa and not (pc & pa)
+
+
 def test_dask_sweep_equals_local_processes(cluster, tmp_path):
     _, client = cluster
     axes = sw.ishigami_axes()
     a, b = tmp_path / "local.h5", tmp_path / "dask.h5"
-    sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, a, LocalExecutor(2))
+    with LocalExecutor(2) as lx:
+        sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, a, lx)
     with DaskExecutor(client=client) as ex:
         sw.run_sweep(sw.ishigami_study(), axes, "sobol", 64, b, ex)
     c = tmp_path / "dask-batched.h5"
@@ -166,8 +186,8 @@ def test_resumed_sweep_recomputes_nothing_it_has(tmp_path):
         sw.run_sweep(counted_study(log), axes, "sobol", 16, out, LocalExecutor(1))
     with pytest.raises(ValueError, match="different sweep"):
         sw.run_sweep(counted_study(log), axes, "sobol", 32, out, LocalExecutor(1), resume=True)
-    res = sw.run_sweep(counted_study(log), axes, "sobol", 16, out, LocalExecutor(2),
-                       resume=True)
+    with LocalExecutor(2) as lx:
+        res = sw.run_sweep(counted_study(log), axes, "sobol", 16, out, lx, resume=True)
     assert (res.reused, res.computed) == (25, 16 * 5 - 25)
     assert evaluations(log) == 16 * 5
     res = sw.run_sweep(counted_study(log), axes, "sobol", 16, out, LocalExecutor(1),
