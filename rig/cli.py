@@ -552,12 +552,23 @@ def sweep_cmd(
     batch: Annotated[int, typer.Option(help="blows per task sent to a worker")] = 1,
 ) -> None:
     """Blows over parameter ranges: per-blow metrics and Sobol sensitivity indices."""
+    import signal
     import sys
     import time
 
     from rig.services import sweep as svc
 
     last = [0.0]
+    stopping = [False]
+
+    def on_sigint(signum: int, frame: object) -> None:  # finish the running blow, then stop
+        if stopping[0]:
+            raise KeyboardInterrupt
+        stopping[0] = True
+        print("sweep: stopping after the running blows (Ctrl-C again to stop at once)",
+              file=sys.stderr, flush=True)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
 
     def progress(done: int, total: int, eta: float) -> None:
         now = time.monotonic()
@@ -569,9 +580,17 @@ def sweep_cmd(
         res, sens = svc.sweep(model, profile, param, out, design=design, samples=samples,
                               seed=seed, duration=duration, scheduler=scheduler, jobs=jobs,
                               resume=resume, force=force, report=report, batch=batch,
-                              progress=progress)
+                              progress=progress, stop=lambda: stopping[0])
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
+    except (KeyboardInterrupt, SystemError) as exc:  # numba wraps a Ctrl-C in SystemError
+        if not isinstance(exc, KeyboardInterrupt) and not stopping[0]:
+            raise
+        err.print(f"interrupted: the finished blows are in {out}; the same command with "
+                  "--resume computes the rest", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(code=130) from None
+    finally:
+        signal.signal(signal.SIGINT, previous)
     console.print(f"{res.rows} blows: {res.computed} computed, {res.reused} already in {out} "
                   f"({res.wall_s:.1f} s)", markup=False, highlight=False)
     if sens is not None:

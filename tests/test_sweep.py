@@ -318,3 +318,38 @@ def test_sweep_cli_refuses_bad_input_and_existing_out(tmp_path):
              str(tmp_path / "m.h5"), "--samples", "2", cwd=tmp_path)
     assert r.returncode == 2 and "contacts.99.D" in r.stderr
     assert not (tmp_path / "m.h5").exists()
+
+
+def test_interrupted_cli_sweep_keeps_its_blows_and_resumes(tmp_path):
+    """Ctrl-C (SIGINT) mid-sweep: exit 130, the file readable and marked interrupted with
+    every finished blow; --resume computes only the rest and the table is complete."""
+    out = tmp_path / "int.h5"
+    args = [sys.executable, "-m", "rig", "sweep", "--profile", str(PROFILE), "--param",
+            "contacts.12.D=0.4:1.2", "--param", "springs.jack_torque=0.0035:0.005",
+            "--design", "lhs", "--samples", "400", "--duration", "0.09", "--jobs", "1",
+            "--out", str(out)]
+    proc = subprocess.Popen(args, cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while "sweep:" not in line:  # blows are being written
+            line = proc.stderr.readline()
+            assert line or proc.poll() is None, "the sweep ended before it could be stopped"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, stderr
+    assert "--resume" in stderr
+    with h5py.File(out, "r") as f:
+        assert f.attrs["status"] == "interrupted"
+        kept = int(f["table/done"][:].sum())
+        assert np.all(np.isfinite(f["table/strike_s"][:][f["table/done"][:] == 1]))
+    assert 0 < kept < 400
+    r = _rig(*args[3:], "--resume", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert f"400 blows: {400 - kept} computed, {kept} already in" in r.stdout
+    with h5py.File(out, "r") as f:
+        assert f.attrs["status"] == "complete" and f["table/done"][:].all()

@@ -233,11 +233,14 @@ def _create(path: Path, study: Study, axes: Sequence[Axis], kind: str, samples: 
 def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: Path,
               executor: Executor, *, seed: int = 0, resume: bool = False, force: bool = False,
               batch: int = 1,
-              progress: Callable[[int, int, float], None] | None = None) -> SweepResult:
+              progress: Callable[[int, int, float], None] | None = None,
+              stop: Callable[[], bool] | None = None) -> SweepResult:
     """Evaluate every design row not yet done and write it to ``out`` as it arrives.
 
     ``batch`` rows go to a worker as one task (fewer round trips when a blow is short
-    compared with a task's overhead; see benchmarks/sweep.py)."""
+    compared with a task's overhead; see benchmarks/sweep.py). ``stop()`` is asked after
+    every result: True ends the sweep there (KeyboardInterrupt, the file marked
+    interrupted with every result so far)."""
     out = Path(out)
     if batch < 1:
         raise ValueError(f"batch: expected at least 1, got {batch}")
@@ -303,6 +306,8 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
                 if progress is not None:
                     el = time.perf_counter() - t0
                     progress(reused + n, X.shape[0], el / n * (len(todo) - n))
+                if stop is not None and stop() and n < len(todo):
+                    raise KeyboardInterrupt
             status = "complete"
         finally:
             write_pending()

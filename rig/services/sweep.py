@@ -18,7 +18,7 @@ def sweep(model_file: Path | None, profile_file: Path, params: Sequence[str], ou
           jobs: int | None = None, resume: bool = False, force: bool = False,
           report: Path | None = None, batch: int = 1,
           progress: Callable[[int, int, float], None] | None = None,
-          ) -> tuple[sw.SweepResult, sw.Sensitivity | None]:
+          stop: Callable[[], bool] | None = None) -> tuple[sw.SweepResult, sw.Sensitivity | None]:
     """Run (or finish) the sweep into ``out``; Sobol indices for a sobol design."""
     axes = [sw.Axis.parse(p) for p in params]
     if len({a.name for a in axes}) != len(axes):
@@ -34,7 +34,8 @@ def sweep(model_file: Path | None, profile_file: Path, params: Sequence[str], ou
     study = sw.action_study(model, profile, axes, duration=duration, identity=ident)
     with executor_for(jobs, scheduler) as ex:
         res = sw.run_sweep(study, axes, design, samples, out, ex, seed=seed, resume=resume,
-                           force=force, batch=batch, progress=progress)
+                           force=force, batch=batch, progress=progress,
+                           stop=stop)
     sens = None
     if design == "sobol":
         sens = sw.sensitivity(out, seed)
