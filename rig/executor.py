@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import multiprocessing as mp
 import os
+import signal
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -31,6 +32,11 @@ SCHEDULER_ENV = "RIG_SCHEDULER"
 
 # shared objects of the running maps, set before the fork so local workers inherit them
 _SHARED: dict[str, Any] = {}
+
+
+def _ignore_sigint() -> None:
+    """Local workers leave Ctrl-C to the parent, which stops the map and the pool."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _local_call(key: str, fn: Callable[[Any, Any], Any], item: Any) -> Any:
@@ -94,7 +100,8 @@ class LocalExecutor(Executor):
         self._shared = shared
         _SHARED[self._key] = shared
         self._pool = ProcessPoolExecutor(max_workers=min(self._workers, n),
-                                         mp_context=mp.get_context("fork"))
+                                         mp_context=mp.get_context("fork"),
+                                         initializer=_ignore_sigint)
         return self._pool, self._key
 
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], *,
