@@ -584,5 +584,80 @@ def synth_cmd(
 # ---- end of rig compare / diagnose / fit / synth ----
 
 
+
+# ---- rig sweep ----
+@app.command("sweep")
+def sweep_cmd(
+    profile: Annotated[Path, typer.Option(help="force profile (YAML or CSV)")],
+    param: Annotated[list[str], typer.Option(
+        help="swept parameter NAME=LOW:HIGH: a path (contacts.12.D) or effect.param; repeat")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="sweep file to write (.h5)")],
+    model: Annotated[Path | None, typer.Option("--model", "-m", help="model YAML")] = None,
+    design: Annotated[str, typer.Option(help="grid, lhs or sobol")] = "sobol",
+    samples: Annotated[int, typer.Option(
+        help="grid: points per axis; lhs: rows; sobol: base samples (power of 2)")] = 64,
+    seed: Annotated[int, typer.Option(help="seed of the lhs/sobol design")] = 0,
+    duration: Annotated[float | None, typer.Option(help="simulated time per blow, s")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
+    jobs: Annotated[int | None, typer.Option(help="local processes (default: one per core)")
+                    ] = None,
+    resume: Annotated[bool, typer.Option(help="continue an interrupted sweep in --out")] = False,
+    force: Annotated[bool, typer.Option(help="replace an existing --out / --report")] = False,
+    report: Annotated[Path | None, typer.Option(help="write the indices as HTML here")] = None,
+    batch: Annotated[int, typer.Option(help="blows per task sent to a worker")] = 1,
+) -> None:
+    """Blows over parameter ranges: per-blow metrics and Sobol sensitivity indices."""
+    import signal
+    import sys
+    import time
+
+    from rig.services import sweep as svc
+
+    last = [0.0]
+    stopping = [False]
+
+    def on_sigint(signum: int, frame: object) -> None:  # finish the running blow, then stop
+        if stopping[0]:
+            raise KeyboardInterrupt
+        stopping[0] = True
+        print("sweep: stopping after the running blows (Ctrl-C again to stop at once)",
+              file=sys.stderr, flush=True)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+
+    def progress(done: int, total: int, eta: float) -> None:
+        now = time.monotonic()
+        if done == total or now - last[0] >= 2.0:
+            last[0] = now
+            print(f"sweep: {done}/{total} blows, ETA {eta:.0f} s", file=sys.stderr, flush=True)
+
+    try:
+        res, sens = svc.sweep(model, profile, param, out, design=design, samples=samples,
+                              seed=seed, duration=duration, scheduler=scheduler, jobs=jobs,
+                              resume=resume, force=force, report=report, batch=batch,
+                              progress=progress, stop=lambda: stopping[0])
+    except (ValueError, RuntimeError) as exc:
+        raise _fail(exc) from None
+    except (KeyboardInterrupt, SystemError) as exc:  # numba wraps a Ctrl-C in SystemError
+        if not isinstance(exc, KeyboardInterrupt) and not stopping[0]:
+            raise
+        err.print(f"interrupted: the finished blows are in {out}; the same command with "
+                  "--resume computes the rest", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(code=130) from None
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    console.print(f"{res.rows} blows: {res.computed} computed, {res.reused} already in {out} "
+                  f"({res.wall_s:.1f} s)", markup=False, highlight=False)
+    if sens is not None:
+        console.print("Sobol indices (first order S1, total order ST, 95 % half-widths):",
+                      markup=False, highlight=False)
+        for line in sens.lines():
+            console.print(line, markup=False, highlight=False, soft_wrap=True)
+    console.print(f"wrote {out}", markup=False, highlight=False)
+    if report is not None:
+        console.print(f"wrote {report}", markup=False, highlight=False)
+
+
 if __name__ == "__main__":  # pragma: no cover
     app()
