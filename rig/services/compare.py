@@ -34,7 +34,7 @@ def compare(run: Path, model_files: Sequence[Path], *, input: str = "force",
     meas = ms.load(run, list(trials) if trials else [0])
     comps = [cp.compare(m, models, input, duration, channels) for m in meas]
     if report_path is not None:  # every requested trial
-        files = [str(f) for f in model_files] or [None]
+        files: list[str | None] = [str(f) for f in model_files] or [None]
         prov = report.Provenance.of(run, [(lb, f, m) for (lb, m), f in
                                           zip(models, files, strict=True)])
         report.write(comps, report_path, title=f"rig compare: {Path(run).name}",
