@@ -175,6 +175,7 @@ def test_report_renders_in_headless_chromium(synthetic: Path, tmp_path: Path) ->
     assert n == 2 * 5  # per trial: focused, whole, residuals, heat map, bars
     assert "synthetic measurement" in text and "held out" in text and "Provenance" in text
     assert "compliant_string(stiffness=" in text
+    assert '"textfont":{"size":12}' in text  # heat-map numbers >= 11 px
     exe = _chromium()
     if exe is None:
         pytest.skip("chromium is not installed and could not be installed (.ci/run installs "

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import re
 import shutil
@@ -135,3 +136,25 @@ def test_parse_window_open_ends() -> None:
     assert quicklook.parse_window("0.05:") == (0.05, float("inf"))
     assert quicklook.parse_window(":0.09") == (float("-inf"), 0.09)
     assert quicklook.parse_window(None) is None
+
+
+def test_candidate_chart_is_not_clipped_and_shows_values() -> None:
+    """A candidate that makes the held-out error four times worse (-300 %) is drawn at
+    -300 % with its value, not clipped at -100 %."""
+    from types import SimpleNamespace
+
+    from rig.analysis import report
+
+    def cand(name: str, removal: float, sig: bool) -> SimpleNamespace:
+        return SimpleNamespace(name=name, removal=removal, significant=sig, error="")
+
+    diag = SimpleNamespace(min_gain=0.2, candidates=[
+        cand("compliant_string", 0.955, True), cand("key_liftoff", -3.0, False),
+        SimpleNamespace(name="broken", removal=-math.inf, significant=False, error="failed")])
+    fig = report._candidates(diag)
+    bar = fig.data[0]
+    assert list(bar.y) == ["key_liftoff", "compliant_string"]  # best on top
+    assert list(bar.x) == pytest.approx([-300.0, 95.5])
+    assert list(bar.text) == ["-300.0 %", "95.5 %"]
+    lo, hi = fig.layout.xaxis.range
+    assert lo < -300 and hi > 95.5
