@@ -16,6 +16,23 @@ console = Console()
 err = Console(stderr=True)
 
 
+def _version(value: bool) -> None:
+    if value:
+        from rig import __version__
+        from rig.runfile import git_commit
+
+        console.print(f"rig {__version__} (git {git_commit()[:12]})", markup=False,
+                      highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: Annotated[bool, typer.Option(
+        "--version", callback=_version, is_eager=True, help="print the version and exit")
+] = False) -> None:
+    """Piano-action test rig: simulate, run, calibrate, compare."""
+
+
 def _fail(exc: Exception) -> typer.Exit:
     err.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
     return typer.Exit(code=2)
@@ -82,36 +99,87 @@ def simulate(
 
 @app.command()
 def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
-    """Summarize a run file: status, provenance, trials, channels, events."""
+    """Summarize a run file: status, provenance, calibrations, loop statistics, and per
+    trial its channels with value ranges and its events in time order."""
+    import numpy as np
+
     from rig import runfile
+    from rig.analysis import plots as pl
 
     try:
         r = runfile.read(run)
     except ValueError as exc:
         raise _fail(exc) from None
     a = r.attrs
-    console.print(f"{run}: {r.kind} run, status {r.status}", markup=False, highlight=False,
-                  soft_wrap=True)
-    console.print(f"created {a.get('created')} on {a.get('host')} by rig "
-                  f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})",
-                  markup=False, highlight=False, soft_wrap=True)
+    _plain(f"{run}: {r.kind} run, status {r.status}")
+    _plain(f"created {a.get('created')} on {a.get('host')} by rig "
+           f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})")
     model = r.metadata.get("model")
     if isinstance(model, dict):
         names = [e.get("name") for e in model.get("effects", [])]
-        console.print(f"model effects: {', '.join(names) or 'none'}", markup=False,
-                      soft_wrap=True)
+        _plain(f"model effects: {', '.join(names) or 'none'}")
+    cals = r.metadata.get("calibrations")
+    if isinstance(cals, list) and cals:
+        _plain("calibrations:")
+        for c in cals:
+            if isinstance(c, dict):
+                _plain(f"  {c.get('sensor', '?'):<18} {c.get('sensitivity', math.nan):.6g} "
+                       f"{c.get('units', '')} per {c.get('raw_units', '')}, offset "
+                       f"{c.get('offset', math.nan):.6g}, "
+                       f"{'nominal' if c.get('nominal') else 'measured'} ({c.get('source', '')})")
+    loop = r.metadata.get("loop_lateness")
+    if isinstance(loop, dict) and loop:
+        _plain(f"loop: {int(loop.get('cycles', 0))} cycles, lateness median "
+               f"{loop.get('median_s', math.nan) * 1e3:.3f} ms, p99 "
+               f"{loop.get('p99_s', math.nan) * 1e3:.3f} ms, max "
+               f"{loop.get('max_s', math.nan) * 1e3:.3f} ms, missed "
+               f"{int(loop.get('missed', 0))}, late {int(loop.get('late_cycles', 0))}")
     for i, tr in enumerate(r.trials):
         n = tr.time.size if "time" in tr.channels else 0
-        span = f"{tr.time[-1] - tr.time[0]:.3f} s" if n > 1 else "-"
-        console.print(f"trial {i}: {n} samples over {span}, status {tr.attrs.get('status')}",
-                      markup=False, highlight=False, soft_wrap=True)
+        span = f"{tr.time[0]:.3f} to {tr.time[-1]:.3f} s" if n > 1 else "-"
+        _plain(f"trial {i}: {n} samples, {span}, status {tr.attrs.get('status')}")
+        late = tr.commands.get("lateness")
+        if late is not None and late.size:
+            missed = tr.commands.get("missed")
+            _plain(f"  loop: {late.size} cycles, lateness median "
+                   f"{np.median(late) * 1e3:.3f} ms, p99 {np.percentile(late, 99) * 1e3:.3f} "
+                   f"ms, max {late.max() * 1e3:.3f} ms, missed "
+                   f"{int(np.nansum(missed)) if missed is not None else 0}")
         for name, data in tr.channels.items():
-            console.print(f"  {name:<28} {tr.units.get(name, ''):<6} {data.shape}",
-                          markup=False, highlight=False, soft_wrap=True)
-        for name, t in tr.events.items():
+            k, u = pl.scale(tr.units.get(name, ""))
+            arr = np.asarray(data, float)
+            rng = (f"{np.nanmin(arr) * k:.5g} .. {np.nanmax(arr) * k:.5g} {u}"
+                   if arr.size and np.isfinite(arr).any() else "no finite value")
+            shape = "" if arr.ndim == 1 else f" {arr.shape[1]} columns"
+            _plain(f"  {name:<24} {tr.units.get(name, ''):<6} {rng}{shape}")
+        for name, t in sorted(tr.events.items(), key=lambda x: (not math.isfinite(x[1]),
+                                                                 x[1])):
             shown = f"{t * 1e3:.2f} ms" if math.isfinite(t) else "--"
-            console.print(f"  event {name:<22} {shown}", markup=False, highlight=False,
-                          soft_wrap=True)
+            _plain(f"  event {name:<22} {shown}")
+
+
+@app.command("plot")
+def plot_cmd(
+    run: Annotated[Path, typer.Argument(help="run file (.h5): simulated, synthetic or measured")],
+    trial: Annotated[int, typer.Option(help="trial index")] = 0,
+    channel: Annotated[list[str] | None, typer.Option(
+        help="plot this channel; repeat (default: up to six, hammer and key first)")] = None,
+    window: Annotated[str | None, typer.Option(
+        help="time window START:END in s, e.g. 0.05:0.09")] = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help=".html (interactive) or .png; default RUN-trialK.html")] = None,
+    force: Annotated[bool, typer.Option(help="replace an existing --out")] = False,
+) -> None:
+    """A quick look at one trial of a run file, its events marked."""
+    from rig.analysis import quicklook
+
+    target = out if out is not None else run.with_name(f"{run.stem}-trial{trial}.html")
+    try:
+        quicklook.plot(run, target, trial=trial, channels=channel,
+                       window=quicklook.parse_window(window), force=force)
+    except ValueError as exc:
+        raise _fail(exc) from None
+    _plain(f"wrote {target}")
 
 
 @app.command("effects")

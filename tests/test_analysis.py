@@ -159,33 +159,51 @@ def _chromium() -> str | None:
 
 
 def test_report_renders_in_headless_chromium(synthetic: Path, tmp_path: Path) -> None:
+    """The compare report is one self-contained file; every figure draws in Chromium with no
+    console error; a page with a script error is caught (the check can fail)."""
     meas = ms.load(synthetic)[0]
     comp = cp.compare(meas, [("base", ActionModel()),
                              ("string", ActionModel(effects=["compliant_string"]))])
-    out = report.write(comp, tmp_path / "report.html")
-    pngs = sorted((tmp_path / "report_files").glob("*.png"))
-    assert len(pngs) == 4
+    prov = report.Provenance.of(synthetic, [("base", None, ActionModel()), (
+        "string", "string.yaml", ActionModel(effects=["compliant_string"]))])
+    out = report.write([comp, comp], tmp_path / "report.html", provenance=prov, held_out=[1])
+    assert not (tmp_path / "report_files").exists()
+    text = out.read_text()
+    assert re.search(r"<script[^>]*\bsrc=", text) is None  # plotly.js embedded, no network
+    assert text.count("Plotly.newPlot") >= 10
+    n = int(re.search(r"data-figures='(\d+)'", text).group(1))  # type: ignore[union-attr]
+    assert n == 2 * 5  # per trial: focused, whole, residuals, heat map, bars
+    assert "synthetic measurement" in text and "held out" in text and "Provenance" in text
+    assert "compliant_string(stiffness=" in text
+    assert '"textfont":{"size":12}' in text  # heat-map numbers >= 11 px
     exe = _chromium()
     if exe is None:
         pytest.skip("chromium is not installed and could not be installed (.ci/run installs "
                     "the Debian package 'chromium' with apt-get)")
-    # a broken image must be caught: render once with a plot removed, then intact
-    moved = pngs[0].with_suffix(".bak")
-    pngs[0].rename(moved)
-    dom_broken = _render(exe, out)
-    moved.rename(pngs[0])
-    dom = _render(exe, out)
-    assert re.search(r'data-images-loaded="3/4"', dom_broken), dom_broken[-400:]
-    assert "plot failed to load" in dom_broken
-    assert re.search(r'data-images-loaded="4/4"', dom), dom[-400:]
+    check_renders(exe, out, n)
+    broken = tmp_path / "broken.html"
+    broken.write_text(text.replace("</body>", "<script>noSuchFunction();</script></body>"))
+    with pytest.raises(AssertionError, match="noSuchFunction"):
+        check_renders(exe, broken, n)
 
 
-def _render(exe: str, html_path: Path) -> str:
+def check_renders(exe: str, html_path: Path, n_figures: int) -> None:
+    """Open the page in headless Chromium: no console error, every figure drawn as SVG."""
+    dom, log = _render(exe, html_path)
+    errors = [ln for ln in log.splitlines() if "Uncaught" in ln or "ERROR:CONSOLE" in ln]
+    m = re.search(r'data-errors="([^"]*)"', dom)
+    assert not errors and m is None, (errors, m.group(1) if m else "")
+    assert re.search(rf'data-plots-drawn="{n_figures}"', dom), dom[-300:]
+    assert len(re.findall(r'class="[^"]*\bjs-plotly-plot\b', dom)) == n_figures
+    assert dom.count('class="main-svg"') >= n_figures
+
+
+def _render(exe: str, html_path: Path) -> tuple[str, str]:
     cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-           "--allow-file-access-from-files", "--virtual-time-budget=5000", "--dump-dom",
+           "--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000", "--dump-dom",
            html_path.resolve().as_uri()]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
-    return out.stdout
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=180, check=False)
+    return out.stdout, out.stderr
 
 
 def test_cli_synth_compare_fit_diagnose(tmp_path: Path) -> None:
@@ -221,7 +239,16 @@ def test_cli_synth_compare_fit_diagnose(tmp_path: Path) -> None:
     written = ActionModel.from_yaml(out)
     assert written.effect_names == ["compliant_string"]
     assert abs(written.effects[0].values["stiffness"] - 2e4) < 0.3 * 2e4
-    assert (tmp_path / "d_files" / "candidates.png").is_file()
+    dtext = (tmp_path / "d.html").read_text()
+    assert "base model + compliant_string" in dtext and "held out" in dtext
+    assert "Residual spectrum" in dtext and "<pre>" not in dtext
+    exe = _chromium()
+    if exe is not None:
+        n = int(re.search(r"data-figures='(\d+)'", dtext).group(1))  # type: ignore[union-attr]
+        assert n == 1 + 2 * 6  # candidates; per trial focused, whole, residuals, spectrum,
+        check_renders(exe, tmp_path / "d.html", n)  # heat map, bars
+        ctext = html.read_text()
+        assert "synthetic measurement" in ctext and ctext.count("<h2>Trial ") == 1
     nothing = tmp_path / "nothing.yaml"
     r = runner.invoke(app, ["diagnose", str(run), "--candidate", "load_cell_filter",
                             "--jobs", "1", "--write", str(nothing)])

@@ -33,6 +33,10 @@ def compare(run: Path, model_files: Sequence[Path], *, input: str = "force",
     models = load_models(model_files)
     meas = ms.load(run, list(trials) if trials else [0])
     comps = [cp.compare(m, models, input, duration, channels) for m in meas]
-    if report_path is not None:
-        report.write(comps[0], report_path, title=f"rig compare: {Path(run).name}")
+    if report_path is not None:  # every requested trial
+        files: list[str | None] = [str(f) for f in model_files] or [None]
+        prov = report.Provenance.of(run, [(lb, f, m) for (lb, m), f in
+                                          zip(models, files, strict=True)])
+        report.write(comps, report_path, title=f"rig compare: {Path(run).name}",
+                     provenance=prov, channels=channels)
     return comps

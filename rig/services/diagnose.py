@@ -5,11 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from rig.analysis import compare as cp
 from rig.analysis import diagnose as dg
+from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import report
 from rig.model.action import ActionModel
-from rig.model.effects import make
+from rig.model.effects import BUILTIN, Effect, make
 
 
 def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
@@ -29,6 +31,41 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
     if write is not None and diag.best is not None:  # nothing to write without a winner
         dg.write_model(model_file, diag.best, write)
     if report_path is not None:
-        report.write(diag.comparison, report_path, title=f"rig diagnose: {Path(run).name}",
-                     diagnosis=diag)
+        write_report(diag, model, model_file, label, meas, extra_classes, report_path,
+                     run=run, input=input, duration=duration, channels=channels)
     return diag
+
+
+def winner_model(diag: dg.Diagnosis, base: ActionModel, rate: float,
+                 extra: Sequence[type[Effect]] = ()) -> ActionModel | None:
+    """The base model with the diagnosis's winning effect at its fitted values (None without
+    a significant winner)."""
+    best = diag.best
+    if best is None:
+        return None
+    classes = {**BUILTIN, **{c.name: c for c in extra}}
+    return ft.rebuild(base, [classes[best.name](**best.values)], rate=rate)
+
+
+def write_report(diag: dg.Diagnosis, model: ActionModel, model_file: Path | None, label: str,
+                 meas: Sequence[ms.Measurement], extra: Sequence[type[Effect]], out: Path, *,
+                 run: Path, input: str, duration: float | None,
+                 channels: Sequence[str] | None) -> Path:
+    """The diagnose report: every trial against the base model and base + winner."""
+    rate = meas[0].rate
+    base = ft.rebuild(model, rate=rate)
+    models: list[tuple[str, ActionModel]] = [(label, base)]
+    files: list[str | None] = [str(model_file) if model_file is not None else None]
+    win = winner_model(diag, model, rate, extra)
+    if win is not None and diag.best is not None:
+        models.append((f"{label} + {diag.best.name}", win))
+        files.append("(rig diagnose: the winner at its fitted values)")
+    comps = [diag.comparison if len(models) == 1 and i == 0 else
+             cp.compare(m, models, input, duration, channels) for i, m in enumerate(meas)]
+    held = list(range(1, len(meas), 2)) if len(meas) > 1 else []
+    prov = report.Provenance.of(run, [(lb, f, m) for (lb, m), f in
+                                      zip(models, files, strict=True)])
+    return report.write(comps, out, title=f"rig diagnose: {Path(run).name}", diagnosis=diag,
+                        provenance=prov, held_out=held, channels=channels,
+                        held_out_text="held out: the candidates were fitted on the other "
+                                      "trials and scored on this one")
