@@ -119,9 +119,9 @@ def regulation() -> list[Row]:
            row("hammer rest, distance to the string", 0.0480, "3.6", rest, 0.1, "mm",
                scale=1e3),
            row("let-off: hammer-string distance when the jack escapes, slow press", 0.001,
-               "1.2", gap_at(res, ev["escapement"]), 0.1, "mm", scale=1e3),
+               "1.2", res.let_off_distance, 0.1, "mm", scale=1e3),
            row("toe meets the let-off button: hammer-string distance, slow press", 0.001,
-               "1.2", gap_at(res, ev["let_off"]), 0.1, "mm", scale=1e3)]
+               "1.2", gap_at(res, ev["toe_meets_button"]), 0.1, "mm", scale=1e3)]
     return out
 
 
@@ -158,7 +158,7 @@ def back_check() -> list[Row]:
     for label, eff in (("rigid", ()), ("full", FULL)):
         ev = blow("forte", eff).events
         out.append(row(f"back check catch after the string release, forte, {label}", 0.009,
-                       "4.1.1", ev["backcheck_catch"] - ev["string_release"], 2.0, "ms",
+                       "4.1.1", ev["check"] - ev["string_release"], 2.0, "ms",
                        scale=1e3))
     return out
 
