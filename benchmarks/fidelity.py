@@ -121,7 +121,15 @@ def regulation() -> list[Row]:
            row("let-off: hammer-string distance when the jack escapes, slow press", 0.001,
                "1.2", res.let_off_distance, 0.1, "mm", scale=1e3),
            row("toe meets the let-off button: hammer-string distance, slow press", 0.001,
-               "1.2", gap_at(res, ev["toe_meets_button"]), 0.1, "mm", scale=1e3)]
+               "1.2", gap_at(res, ev["toe_meets_button"]), 0.1, "mm", scale=1e3),
+           # at the end of the press (key held at 4 N) the hammer has come off the back
+           # check and sits on the repetition lever (see docs/fidelity.md)
+           row("hammer on the repetition lever, distance to the string, key held", 0.003,
+               "1.2", float(string_gap(res)[-1]), 0.1, "mm", scale=1e3)]
+    after = (dip - res.at("key_dip", ev["let_off"])) * 1e3
+    out.append({"quantity": "aftertouch: key travel from let-off to the front punching, "
+                "slow press", "thesis": "-", "section": "-", "model": f"{after:.3g} mm",
+                "deviation": "-", "tolerance": "-", "ok": None})
     return out
 
 
