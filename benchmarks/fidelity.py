@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from fidelity_drive import rows as drive_rows  # noqa: E402
 
 from rig import profiles  # noqa: E402
+from rig.model import regulation  # noqa: E402
 from rig.model.action import ActionModel, SimResult  # noqa: E402
 
 FULL = ("flexible_shank", "key_liftoff")
@@ -79,8 +80,7 @@ def model(effects: tuple[str, ...] = ()) -> ActionModel:
 @cache
 def blow(name: str, effects: tuple[str, ...] = ()) -> SimResult:
     if name == "slow":
-        prof = profiles.from_points([[0.0, 0.0], [0.02, 0.0], [1.02, 4.0], [1.3, 4.0]],
-                                    name="slow press")
+        prof = regulation.slow_press()
     else:
         prof = profiles.load(ROOT / "profiles" / f"{name}.yaml")
     return model(effects).simulate(prof)
@@ -108,29 +108,25 @@ def largest_rigid_angles() -> list[Row]:
             for n, v in TABLE_4_1.items()]
 
 
-def regulation() -> list[Row]:
-    """Slow key press on the rigid model: key dip, hammer rest height, let-off."""
-    res = blow("slow")
-    ev = res.events
-    rest = float(string_gap(res)[0])
-    dip = res.at("key_dip", ev["key_bottom"])
-    out = [row("key dip (key top travel to the front felt), slow press", 0.0100, "3.6",
-               dip, 0.1, "mm", scale=1e3),
-           row("hammer rest, distance to the string", 0.0480, "3.6", rest, 0.1, "mm",
-               scale=1e3),
-           row("let-off: hammer-string distance when the jack escapes, slow press", 0.001,
-               "1.2", res.let_off_distance, 0.1, "mm", scale=1e3),
-           row("toe meets the let-off button: hammer-string distance, slow press", 0.001,
-               "1.2", gap_at(res, ev["toe_meets_button"]), 0.1, "mm", scale=1e3),
-           # at the end of the press (key held at 4 N) the hammer has come off the back
-           # check and sits on the repetition lever (see docs/fidelity.md)
-           row("hammer on the repetition lever, distance to the string, key held", 0.003,
-               "1.2", float(string_gap(res)[-1]), 0.1, "mm", scale=1e3)]
-    after = (dip - res.at("key_dip", ev["let_off"])) * 1e3
-    out.append({"quantity": "aftertouch: key travel from let-off to the front punching, "
-                "slow press", "thesis": "-", "section": "-", "model": f"{after:.3g} mm",
-                "deviation": "-", "tolerance": "-", "ok": None})
-    return out
+def regulation_rows() -> list[Row]:
+    """Slow key press on the rigid model (rig.model.regulation, ``rig regulate``)."""
+    fig = regulation.from_press(blow("slow"))
+    mm = {"scale": 1e3, "unit": "mm", "tolerance": 0.1}
+    return [row("key dip (key top travel to the front punching), slow press", 0.0100, "3.6",
+                fig["key_dip"], **mm),
+            row("hammer rest, distance to the string", 0.0480, "3.6", fig["hammer_rest"], **mm),
+            row("let-off: hammer-string distance when the jack escapes, slow press", 0.001,
+                "1.2", fig["let_off"], **mm),
+            row("toe meets the let-off button: hammer-string distance, slow press", 0.001,
+                "1.2", fig["toe_meets_button"], **mm),
+            # at the end of the press (key held at 4 N) the hammer has come off the back
+            # check and sits on the repetition lever (see docs/fidelity.md)
+            row("hammer on the repetition lever, distance to the string, key held", 0.003,
+                "1.2", fig["drop"], **mm),
+            {"quantity": "aftertouch: key travel from let-off to the front punching, "
+             "slow press", "thesis": "-", "section": "-",
+             "model": f"{fig['aftertouch'] * 1e3:.3g} mm", "deviation": "-", "tolerance": "-",
+             "ok": None}]
 
 
 def string_contact() -> list[Row]:
@@ -243,7 +239,7 @@ def impact_speed() -> list[Row]:
             for name, value in impact_speed_definitions(eff).items()]
 
 
-ROWS: list[Callable[[], list[Row]]] = [rest_angles, largest_rigid_angles, regulation,
+ROWS: list[Callable[[], list[Row]]] = [rest_angles, largest_rigid_angles, regulation_rows,
                                        string_contact, back_check, shank, scuffing_rows,
                                        impact_speed, drive_rows]
 

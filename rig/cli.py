@@ -114,6 +114,26 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
                           soft_wrap=True)
 
 
+@app.command("regulate")
+def regulate(
+    model: Annotated[Path | None, typer.Option(help="model YAML (parameters, effects)")] = None,
+) -> None:
+    """The model's regulation as a technician measures it (a slow key press), in mm."""
+    from rig.model import regulation
+    from rig.model.action import ActionModel
+
+    try:
+        m = ActionModel.from_yaml(model) if model else ActionModel()
+    except ValueError as exc:
+        raise _fail(exc) from None
+    figures = regulation.measure(m)
+    for name, value in figures.items():
+        target = regulation.THESIS_TARGETS.get(name)
+        thesis = f"  (thesis {target * 1e3:.1f} mm)" if target is not None else ""
+        console.print(f"{name:<17} {value * 1e3:7.2f} mm  {regulation.FIGURE_DOCS[name]}{thesis}",
+                      markup=False, highlight=False, soft_wrap=True)
+
+
 @app.command("effects")
 def list_effects() -> None:
     """List the effect library: parameters and the residual each effect explains."""
