@@ -61,3 +61,40 @@ def test_missing_model_is_refused_in_one_line(tmp_path):
     out = rig_cli("regulate", "--model", str(tmp_path / "none.yaml"))
     assert out.returncode == 2
     assert "none.yaml" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+TARGETS = ROOT / "rig" / "data" / "regulation-targets.yaml"
+
+
+def test_regulate_to_the_thesis_targets_writes_a_model_that_meets_them(tmp_path):
+    out_yaml = tmp_path / "regulated.yaml"
+    out = rig_cli("regulate", "--to", str(TARGETS), "--write", str(out_yaml))
+    assert out.returncode == 0, out.stderr
+    assert out_yaml.exists()
+    # measured again from the written file, by the same command
+    again = rig_cli("regulate", "--model", str(out_yaml))
+    assert again.returncode == 0, again.stderr
+    shown = {ln.split()[0]: float(ln.split()[1]) for ln in again.stdout.splitlines()
+             if ln.strip()}
+    targets = regulation.load_targets(TARGETS)
+    assert targets == {"key_dip": 0.010, "hammer_rest": 0.048, "let_off": 0.001,
+                       "drop": 0.003}
+    for name, target in targets.items():
+        assert abs(shown[name] - target * 1e3) <= 0.1, name  # within 0.1 mm
+    # an existing file is not overwritten without --force
+    before = out_yaml.read_text()
+    refused = rig_cli("regulate", "--to", str(TARGETS), "--write", str(out_yaml))
+    assert refused.returncode == 2 and "--force" in refused.stderr
+    assert out_yaml.read_text() == before
+
+
+def test_bad_targets_are_refused_in_one_line(tmp_path):
+    bad = tmp_path / "t.yaml"
+    bad.write_text("key_dip: 10.0\n")  # millimetres where metres are expected
+    out = rig_cli("regulate", "--to", str(bad), "--write", str(tmp_path / "m.yaml"))
+    assert out.returncode == 2
+    assert "t.yaml: key_dip" in out.stderr and len(out.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "m.yaml").exists()
+    bad.write_text("capstan: 0.01\n")
+    out = rig_cli("regulate", "--to", str(bad))
+    assert out.returncode == 2 and "capstan: unknown target" in out.stderr
