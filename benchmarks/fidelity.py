@@ -129,6 +129,15 @@ def regulation_rows() -> list[Row]:
              "ok": None}]
 
 
+def regulated_rows() -> list[Row]:
+    """The shipped model regulated to the thesis's targets (``rig regulate --to``)."""
+    targets = regulation.load_targets(regulation.TARGETS_FILE)
+    _, fig = regulation.solve(model().params, targets)
+    sections = {"key_dip": "3.6", "hammer_rest": "3.6", "let_off": "1.2", "drop": "1.2"}
+    return [row(f"regulated model (rig regulate --to): {name}", value, sections[name],
+                fig[name], 0.1, "mm", scale=1e3) for name, value in targets.items()]
+
+
 def string_contact() -> list[Row]:
     out = []
     for label, eff in (("rigid", ()), ("flexible shank", ("flexible_shank",)), ("full", FULL)):
@@ -240,6 +249,7 @@ def impact_speed() -> list[Row]:
 
 
 ROWS: list[Callable[[], list[Row]]] = [rest_angles, largest_rigid_angles, regulation_rows,
+                                       regulated_rows,
                                        string_contact, back_check, shank, scuffing_rows,
                                        impact_speed, drive_rows]
 

@@ -35,3 +35,5 @@ def test_fidelity_table_rows():
                 ["model"].split()[0])
     assert 0.5 < escape < toe  # the toe meets the button first, the jack escapes later
     assert sum("impact speed" in q for q in by_name) >= 4
+    regulated = [r for q, r in by_name.items() if q.startswith("regulated model")]
+    assert len(regulated) == 4 and all(r["ok"] is True for r in regulated)
