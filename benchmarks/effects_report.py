@@ -34,7 +34,7 @@ def main() -> None:
         s = res.summary()
         print(f"forte, {name}: strike {s['strike_s'] * 1e3:.2f} ms at {s['strike_speed_m_s']:.3f}"
               f" m/s, string contact {s['string_contact_s'] * 1e3:.2f} ms, back check "
-              f"{(s['backcheck_catch_s'] - s['string_release_s']) * 1e3:.1f} ms after release, "
+              f"{(s['check_s'] - s['string_release_s']) * 1e3:.1f} ms after release, "
               f"scuffing {scuffing_mm(res):.3f} mm")
     t, ev = flex.time, flex.events
     tip = flex.channels["shank_tip_deflection"]

@@ -182,6 +182,52 @@ def plot_cmd(
     _plain(f"wrote {target}")
 
 
+@app.command("regulate")
+def regulate(
+    model: Annotated[Path | None, typer.Option(help="model YAML (parameters, effects)")] = None,
+    to: Annotated[Path | None, typer.Option(
+        "--to", help="targets YAML (m), e.g. rig/data/regulation-targets.yaml")] = None,
+    write: Annotated[Path | None, typer.Option(help="model YAML to write (with --to)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="overwrite --write's file")] = False,
+) -> None:
+    """The model's regulation as a technician measures it (a slow key press), in mm; with
+    --to, the regulating adjustments that meet the targets, written to --write."""
+    import yaml
+
+    from rig.model import regulation
+    from rig.model.action import ActionModel
+    from rig.params import load_yaml_file
+
+    try:
+        if write is not None and to is None:
+            raise ValueError("--write: needs --to targets.yaml")
+        if write is not None and write.exists() and not force:
+            raise ValueError(f"{write}: exists (use --force to overwrite)")
+        m = ActionModel.from_yaml(model) if model else ActionModel()
+        targets = regulation.load_targets(to) if to is not None else {}
+        base = load_yaml_file(model) if model else None
+        if to is not None:
+            points, figures = regulation.solve(m.params, targets, m.effect_names)
+            data = regulation.regulated_model_yaml(base, points, to)
+        else:
+            figures = regulation.measure(m)
+    except ValueError as exc:
+        raise _fail(exc) from None
+    for name, value in figures.items():
+        target = targets.get(name, regulation.THESIS_TARGETS.get(name))
+        label = "target" if name in targets else "thesis"
+        shown = f"  ({label} {target * 1e3:.1f} mm)" if target is not None else ""
+        console.print(f"{name:<17} {value * 1e3:7.2f} mm  {regulation.FIGURE_DOCS[name]}{shown}",
+                      markup=False, highlight=False, soft_wrap=True)
+    if to is not None:
+        for path, at in points.items():
+            console.print(f"adjusted {path}: y = {at[1] * 1e3:.3f} mm", markup=False,
+                          highlight=False, soft_wrap=True)
+    if write is not None:
+        write.write_text(yaml.safe_dump(data, sort_keys=False))
+        console.print(f"wrote {write}", markup=False, highlight=False, soft_wrap=True)
+
+
 @app.command("effects")
 def list_effects() -> None:
     """List the effect library: parameters and the residual each effect explains."""

@@ -62,6 +62,18 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot store {type(obj).__name__} in run-file metadata")
 
 
+# names of run files written before the technicians' names (old -> new); old files are
+# recognised by their "escapement" event (the old "let_off" was the toe meeting the button)
+LEGACY_EVENT_NAMES = {"let_off": "toe_meets_button", "escapement": "let_off",
+                      "backcheck_catch": "check"}
+
+
+def current_event_names(events: Mapping[str, float]) -> dict[str, float]:
+    """Events under today's names; an old run file's events (with "escapement") renamed."""
+    if "escapement" not in events:
+        return dict(events)
+    return {LEGACY_EVENT_NAMES.get(n, n): v for n, v in events.items()}
+
 class TrialWriter:
     """Channels, commands and events of one trial (appendable)."""
 
@@ -273,7 +285,7 @@ def read(path: str | Path) -> Run:
             ch, units, cols = _read_section(g.get("channels"))
             cmd, cunits, _ = _read_section(g.get("commands"))
             units.update({f"commands/{k}": v for k, v in cunits.items()})
-            ev = {k: float(v[()]) for k, v in g.get("events", {}).items()}
+            ev = current_event_names({k: float(v[()]) for k, v in g.get("events", {}).items()})
             trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs)))
     return Run(p, attrs, meta, trials)
 

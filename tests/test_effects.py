@@ -87,7 +87,7 @@ def test_shank_first_mode_against_beam_theory_and_thesis(flex_model):
 def test_ring_down_after_the_strike_at_the_first_mode(flex_model, forte_flex):
     ev, t = forte_flex.events, forte_flex.time
     strain = forte_flex.channels["shank_strain"]
-    window = (t > ev["string_release"] + 0.0005) & (t < ev["backcheck_catch"])
+    window = (t > ev["string_release"] + 0.0005) & (t < ev["check"])
     sig = strain[window] - strain[window].mean()
     spec = np.abs(np.fft.rfft(sig * np.hanning(sig.size), 16 * sig.size))
     freq = np.fft.rfftfreq(16 * sig.size, t[1] - t[0])
@@ -95,7 +95,7 @@ def test_ring_down_after_the_strike_at_the_first_mode(flex_model, forte_flex):
     ritz = flex_model.packed.shank_first_mode_rad_s / (2 * math.pi)
     assert peak == pytest.approx(ritz, rel=0.10)
     ring = np.ptp(sig)
-    later = (t > ev["backcheck_catch"] + 0.05) & (t < ev["backcheck_catch"] + 0.1)
+    later = (t > ev["check"] + 0.05) & (t < ev["check"] + 0.1)
     assert ring > 500e-6  # hundreds of microstrain ring after the strike ...
     assert np.ptp(strain[later]) < 0.1 * ring  # ... and settle once the back check holds it
 
@@ -325,8 +325,8 @@ def test_backcheck_law_changes_only_the_check(forte, short_base):
     stiff = ActionModel(effects=[{"backcheck_law": {"stiffness_scale": 5.0, "friction": 0.1}}])
     res = stiff.simulate(forte, 0.15)
     t = res.time
-    before = t < short_base.events["backcheck_catch"] - 1e-3
-    after = t > short_base.events["backcheck_catch"] + 5e-3
+    before = t < short_base.events["check"] - 1e-3
+    after = t > short_base.events["check"] + 5e-3
     diff = np.abs(res.channels["hammer_angle"] - short_base.channels["hammer_angle"])
     assert diff[before].max() < 1e-9
     assert diff[after].max() > 1e-3
@@ -338,7 +338,7 @@ def test_felt_hysteresis_and_compliant_string_change_the_string_contact(forte, s
     assert soft.events["string_release"] - soft.events["strike"] > 1.5 * base_contact
     hyst = ActionModel(effects=["felt_hysteresis"]).simulate(forte, 0.15)
     assert hyst.success
-    assert abs(shift_ms(hyst, short_base, "backcheck_catch")) > 1.0
+    assert abs(shift_ms(hyst, short_base, "check")) > 1.0
 
 
 def test_contact_laws_against_their_definitions():

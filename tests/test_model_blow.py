@@ -51,8 +51,8 @@ def test_rest_state_matches_table_3_2_and_the_rest_gaps(effects):
 def test_forte_events_in_physical_order(forte_rigid):
     ev = forte_rigid.events
     assert all(math.isfinite(ev[name]) for name in EVENT_ORDER), ev
-    assert ev["key_starts"] < ev["let_off"] < ev["escapement"] < ev["strike"]
-    assert ev["strike"] < ev["string_release"] < ev["backcheck_catch"]
+    assert ev["key_starts"] < ev["toe_meets_button"] < ev["let_off"] < ev["strike"]
+    assert ev["strike"] < ev["string_release"] < ev["check"]
     assert ev["key_bottom"] < ev["key_release"]
     assert ev["string_release"] - ev["strike"] < 0.004  # the hammer rebounds within a few ms
 

@@ -35,6 +35,39 @@ def test_result_round_trip(tmp_path, forte_rigid):
                      and _has_units(n, o))
 
 
+def test_old_event_names_read_under_the_technicians_names(tmp_path, forte_rigid):
+    """Run files written before issue 12 called the toe meeting the button "let_off", the
+    jack's escape "escapement" and the check "backcheck_catch"; they read as today's."""
+    path = runfile.write_result(tmp_path / "old.h5", forte_rigid)
+    ev = forte_rigid.events
+    with h5py.File(path, "r+") as f:
+        grp = f["trial_0001/events"] if "trial_0001" in f else f[sorted(
+            n for n in f if n.startswith("trial_"))[0]]["events"]
+        for new, old in (("let_off", "escapement"), ("toe_meets_button", "let_off"),
+                         ("check", "backcheck_catch")):
+            del grp[new]
+            grp[old] = {"escapement": ev["let_off"], "let_off": ev["toe_meets_button"],
+                        "backcheck_catch": ev["check"]}[old]
+    old = runfile.read(path).trials[0].events
+    for name in EVENT_ORDER:
+        assert old[name] == ev[name], name
+    assert "escapement" not in old and "backcheck_catch" not in old
+
+
+def test_let_off_is_the_jack_escaping_with_the_hammer_distance(forte_rigid):
+    ev = forte_rigid.events
+    # the toe meets the button first; the jack leaves the knuckle (contact 7) later
+    assert ev["toe_meets_button"] < ev["let_off"] < ev["strike"]
+    jack = forte_rigid.contact("contact_force", 7)  # jack top on the knuckle
+    assert np.interp(ev["let_off"] - 2e-4, forte_rigid.time, jack) > 0
+    assert np.interp(ev["let_off"] + 2e-4, forte_rigid.time, jack) == 0
+    gap = -np.interp(ev["let_off"], forte_rigid.time,
+                     forte_rigid.contact("contact_penetration", 12))
+    assert forte_rigid.let_off_distance == pytest.approx(gap)
+    assert forte_rigid.summary()["let_off_distance_m"] == forte_rigid.let_off_distance
+    assert 0 < forte_rigid.let_off_distance < 0.01  # millimetres from the string
+
+
 def _has_units(name, obj):
     assert "units" in obj.attrs, name
 

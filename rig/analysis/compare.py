@@ -32,18 +32,18 @@ PHASES: tuple[tuple[str, str | None, str | None], ...] = (
     ("key descent", "key_starts", "let_off"),
     ("let-off to strike", "let_off", "strike"),
     ("string contact", "strike", "string_release"),
-    ("flight back to the check", "string_release", "backcheck_catch"),
-    ("check", "backcheck_catch", "key_release"),
+    ("flight back to the check", "string_release", "check"),
+    ("check", "check", "key_release"),
     ("release", "key_release", None),
 )
 PHASE_NAMES = tuple(p[0] for p in PHASES)
 EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
     "key_starts": ("key_dip", "key_angle", "whippen_angle"),
+    "toe_meets_button": ("hammer_angle", "whippen_angle"),
     "let_off": ("hammer_angle", "whippen_angle"),
-    "escapement": ("hammer_angle", "whippen_angle"),
     "strike": ("hammer_angle", "shank_strain"),
     "string_release": ("hammer_angle", "shank_strain"),
-    "backcheck_catch": ("hammer_angle",),
+    "check": ("hammer_angle",),
     "key_bottom": ("key_dip", "key_angle"),
     "key_release": ("key_dip", "key_angle"),
 }
@@ -52,7 +52,7 @@ KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
     ("strike time", "strike", "ms"),
     ("hammer speed at strike", "", "m/s"),
     ("let-off time", "let_off", "ms"),
-    ("check time", "backcheck_catch", "ms"),
+    ("check time", "check", "ms"),
     ("key-bottom time", "key_bottom", "ms"),
 )
 

@@ -85,11 +85,12 @@ CHANNEL_DOCS: dict[str, str] = {
 # event name -> (contact id, direction), + = contact closes, - = opens
 EVENT_DOCS: dict[str, str] = {
     "key_starts": "key starts to move (key top travel exceeds the threshold)",
-    "let_off": "jack toe meets the let-off button (contact 8 closes)",
-    "escapement": "jack leaves the knuckle after let-off (contact 7 opens)",
+    "toe_meets_button": "jack toe meets the let-off button (contact 8 closes)",
+    "let_off": "the jack escapes: it leaves the knuckle after its toe met the button "
+               "(contact 7 opens)",
     "strike": "hammer meets the string (contact 12 closes)",
     "string_release": "hammer leaves the string (contact 12 opens)",
-    "backcheck_catch": "back check catches the hammer tail (contact 4 closes)",
+    "check": "back check catches the hammer tail after the string release (contact 4 closes)",
     "key_bottom": "key reaches its front felt (contact 2 closes)",
     "key_release": "key leaves its front felt for good (contact 2 opens for the last time)",
 }
@@ -147,8 +148,19 @@ class SimResult:
         i = int(np.searchsorted(self.time, ts, side="right")) - 1
         return float(self.channels["hammer_head_velocity"][max(i, 0)])
 
+    @property
+    def let_off_distance(self) -> float:
+        """Hammer-to-string distance (m) when the jack escapes (``let_off``); NaN without
+        a let-off or without contact 12's penetration channel."""
+        tl = self.events.get("let_off", math.nan)
+        if not math.isfinite(tl) or 12 not in self.contact_ids \
+                or "contact_penetration" not in self.channels:
+            return math.nan
+        return -float(np.interp(tl, self.time, self.contact("contact_penetration", 12)))
+
     def summary(self) -> dict[str, float]:
         out = {f"{n}_s": self.events.get(n, math.nan) for n in EVENT_ORDER}
+        out["let_off_distance_m"] = self.let_off_distance
         out["strike_speed_m_s"] = self.strike_speed
         ts, tr = self.events.get("strike", math.nan), self.events.get("string_release", math.nan)
         out["string_contact_s"] = tr - ts
@@ -197,13 +209,13 @@ def find_events(result: SimResult, threshold_m: float = KEY_MOVE_THRESHOLD_M,
         return contact_indicator(result, cid, damping.get(cid, 0.0))
 
     start = ev["key_starts"] if math.isfinite(ev["key_starts"]) else t[0] - 1.0
-    ev["let_off"] = _first_after(_crossings(t, pen(8), True), start)
-    ev["escapement"] = _first_after(_crossings(t, pen(7), False),
-                                    ev["let_off"] if math.isfinite(ev["let_off"]) else start)
+    ev["toe_meets_button"] = _first_after(_crossings(t, pen(8), True), start)
+    toe = ev["toe_meets_button"]
+    ev["let_off"] = _first_after(_crossings(t, pen(7), False), toe if math.isfinite(toe) else start)
     ev["strike"] = _first_after(_crossings(t, pen(12), True), start)
     ev["string_release"] = _first_after(_crossings(t, pen(12), False), ev["strike"]) \
         if math.isfinite(ev["strike"]) else math.nan
-    ev["backcheck_catch"] = _first_after(_crossings(t, pen(4), True), ev["string_release"]) \
+    ev["check"] = _first_after(_crossings(t, pen(4), True), ev["string_release"]) \
         if math.isfinite(ev["string_release"]) else math.nan
     ev["key_bottom"] = _first_after(_crossings(t, pen(2), True), start)
     leaves = _crossings(t, pen(2), False)
