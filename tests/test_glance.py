@@ -48,7 +48,7 @@ def measured(tmp_path: Path) -> Path:
                                    "missed": np.zeros(tc.size)},
                       {"time": "s", "lateness": "s", "missed": "1"})
             tw.write_events({"strike": 0.1, "key_starts": 0.001, "let_off": 0.098,
-                             "backcheck_catch": float("nan")})
+                             "check": float("nan")})
             tw.set_attrs(status="complete", t0=i * 0.3)
     return path
 
@@ -71,8 +71,8 @@ def test_info_shows_calibrations_loop_ranges_and_events_in_time_order(measured: 
     assert re.search(r"key_dip\s+m\s+0 \.\. 10 mm", out)
     first = out.split("trial 1:")[0]
     order = [m.group(1) for m in re.finditer(r"event (\w+)", first)]
-    assert order == ["key_starts", "let_off", "strike", "backcheck_catch"]  # NaN last
-    assert re.search(r"event backcheck_catch\s+--", first)
+    assert order == ["key_starts", "let_off", "strike", "check"]  # NaN last
+    assert re.search(r"event check\s+--", first)
 
 
 def test_plot_png_and_window_and_overwrite_refusal(measured: Path, tmp_path: Path) -> None:

@@ -24,9 +24,10 @@ MODEL_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b
 PREFERRED = ("hammer_angle", "key_dip", "shank_strain", "force", "whippen_angle", "key_angle",
              "hammer_head_velocity", "jack_angle", "repetition_angle")
 MAX_CHANNELS = 6
-EVENT_LABELS = {"key_starts": "key starts", "let_off": "let-off", "escapement": "escapement",
+EVENT_LABELS = {"key_starts": "key starts", "toe_meets_button": "toe meets button",
+                "let_off": "let-off",
                 "strike": "strike", "string_release": "string release",
-                "backcheck_catch": "check", "key_bottom": "key bottom",
+                "check": "check", "key_bottom": "key bottom",
                 "key_release": "key release"}
 FONT = {"family": "sans-serif", "size": 13}
 

@@ -93,9 +93,9 @@ def _focus(comp: Comparison) -> tuple[float, float]:
     """Let-off to the check (s), with a margin; falls back to the whole trial."""
     ev = comp.events
     t0, t1 = float(comp.time[0]), float(comp.time[-1])
-    lo = next((ev[e] for e in ("let_off", "escapement", "strike") if math.isfinite(
+    lo = next((ev[e] for e in ("let_off", "toe_meets_button", "strike") if math.isfinite(
         ev.get(e, math.nan))), t0)
-    hi = next((ev[e] for e in ("backcheck_catch", "string_release", "key_bottom")
+    hi = next((ev[e] for e in ("check", "string_release", "key_bottom")
                if math.isfinite(ev.get(e, math.nan)) and ev[e] > lo), t1)
     return max(t0, lo - FOCUS_MARGIN_S), min(t1, hi + FOCUS_MARGIN_S)
 

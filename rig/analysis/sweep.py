@@ -80,8 +80,9 @@ class Study:
 ACTION_METRICS = [
     Metric("strike_s", "s", "hammer meets the string, from the profile's start"),
     Metric("hammer_speed_m_s", "m/s", "hammer-head speed just before the string"),
-    Metric("let_off_s", "s", "jack toe meets the let-off button"),
-    Metric("escapement_s", "s", "jack leaves the knuckle"),
+    Metric("toe_meets_button_s", "s", "jack toe meets the let-off button"),
+    Metric("let_off_s", "s", "let-off: the jack escapes (leaves the knuckle)"),
+    Metric("let_off_distance_m", "m", "hammer to string when the jack escapes"),
     Metric("check_s", "s", "back check catches the hammer tail"),
     Metric("string_contact_s", "s", "time the hammer stays on the string"),
     Metric("keytop_force_let_off_N", "N", "force on the key top at let-off"),
@@ -103,8 +104,8 @@ def blow_metrics(result: Any) -> tuple[float, ...]:
 
     strain = result.channels.get("shank_strain")
     peak = float(np.max(np.abs(strain))) if strain is not None and strain.size else nan
-    return (ev.get("strike", nan), result.strike_speed, lo, ev.get("escapement", nan),
-            ev.get("backcheck_catch", nan), ev.get("string_release", nan) - ev.get("strike", nan),
+    return (ev.get("strike", nan), result.strike_speed, ev.get("toe_meets_button", nan), lo,
+            float(getattr(result, "let_off_distance", nan)), ev.get("check", nan), ev.get("string_release", nan) - ev.get("strike", nan),
             at("force", lo), at("key_dip", lo), at("key_dip", kb) - at("key_dip", lo), peak)
 
 
