@@ -105,7 +105,8 @@ def blow_metrics(result: Any) -> tuple[float, ...]:
     strain = result.channels.get("shank_strain")
     peak = float(np.max(np.abs(strain))) if strain is not None and strain.size else nan
     return (ev.get("strike", nan), result.strike_speed, ev.get("toe_meets_button", nan), lo,
-            float(getattr(result, "let_off_distance", nan)), ev.get("check", nan), ev.get("string_release", nan) - ev.get("strike", nan),
+            float(getattr(result, "let_off_distance", nan)), ev.get("check", nan),
+            ev.get("string_release", nan) - ev.get("strike", nan),
             at("force", lo), at("key_dip", lo), at("key_dip", kb) - at("key_dip", lo), peak)
 
 
