@@ -21,6 +21,8 @@ Messages to the run (queue ``status``): ("ready",), ("started",),
 
 from __future__ import annotations
 
+import functools
+import os
 import queue
 import signal
 import time
@@ -35,6 +37,7 @@ from rig import calrecords, runfile
 from rig.calrecords import CalRecord
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault, open_reader
+from rig.supervisor import ControllerWatch, make_safe
 
 COMMAND_UNITS = {
     "time": "s", "tick": "1", "target": "N", "feedforward": "N", "demand": "N", "volts": "V",
@@ -166,30 +169,80 @@ class Acquisition:
         self.writer.close(status)
 
 
+class _ControllerDied(Exception):
+    def __init__(self, watch: ControllerWatch) -> None:
+        super().__init__(f"the controller process (pid {watch.pid}) died; the supervisor zeroed "
+                         f"the demand and disabled the drive")
+        self.watch = watch
+
+
+def _drain(acq: Acquisition, reader: Any, watch: ControllerWatch, quiet_s: float = 0.1,
+           limit_s: float = 2.0) -> None:
+    """Take the rows still in the card buffer after the loop's death (until none come for
+    ``quiet_s``); a fault while draining keeps what was taken."""
+    watch.safe.wait(timeout=limit_s)
+    end = time.monotonic() + limit_s
+    quiet = time.monotonic() + quiet_s
+    try:
+        acq.poll()
+        while time.monotonic() < min(end, quiet):
+            rows = reader.read(0.01)
+            if rows.shape[0]:
+                acq.take(rows)
+                quiet = time.monotonic() + quiet_s
+    except (DaqFault, OSError, ValueError, EOFError):
+        pass
+
+
 def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any],
-                    path: str, metadata: dict[str, Any], ctrl: Any, status: Any) -> None:
-    """Entry point of the acquisition process."""
+                    path: str, metadata: dict[str, Any], ctrl: Any, status: Any,
+                    controller_pid: int | None = None) -> None:
+    """Entry point of the acquisition process; it supervises ``controller_pid`` (default its
+    parent, the loop's process): see rig.supervisor."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # SIGTERM/SIGHUP to the whole group (a closed terminal) must not kill the file's writer:
+    # the run's process decides, and if it dies the supervisor closes the file
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    controller_pid = controller_pid or os.getppid()
     cfg = from_mapping(cfg_data)
     records = {k: CalRecord(**v) for k, v in cals.items()}
     writer = runfile.RunWriter(Path(path), "measured", metadata, crash_safe=True)
     acq = Acquisition(cfg, records, writer, ctrl, status)
     code = 0
     reader = None
+    watch: ControllerWatch | None = None
     try:
         reader = open_reader(spec)
+        watch = ControllerWatch(controller_pid, functools.partial(make_safe, reader, cfg))
+        watch.start()
         status.put(("ready",))
+        start_end = time.monotonic() + cfg.acquisition.start_timeout_s
         while True:
-            msg = ctrl.get(timeout=cfg.acquisition.start_timeout_s)
+            if watch.dead.is_set():
+                raise _ControllerDied(watch)
+            try:
+                msg = ctrl.get(timeout=0.05)
+            except queue.Empty:
+                if time.monotonic() > start_end:
+                    raise
+                continue
             if msg[0] == "go":
                 break
             acq._handle(msg)
+            if acq.stop is not None:  # the run ended before the clock started: close at once
+                _, _, final_status, meta, tattrs = acq.stop
+                acq.finish(final_status, meta, tattrs)
+                status.put(("done", 0))
+                return
         reader.start()
         status.put(("started",))
         period = cfg.acquisition.read_period_s
         last_flush = time.monotonic()
         drain_until = None
         while True:
+            if watch.dead.is_set():
+                raise _ControllerDied(watch)
             acq.poll()
             rows = reader.read(period)
             acq.take(rows)
@@ -211,6 +264,14 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                             f"samples" if final_status == "complete" else final_status)
         acq.finish(final_status, meta, tattrs)
         status.put(("done", acq.next_sample))
+    except _ControllerDied as exc:
+        code = 1
+        why = str(exc)
+        if reader is not None:  # every sample the card buffered up to the death
+            _drain(acq, reader, exc.watch)
+        if exc.watch.error:
+            why += f" (making the rig safe failed: {exc.watch.error})"
+        _abort(acq, writer, f"aborted: {why}")
     except DaqFault as exc:
         code = 1
         _abort(acq, writer, f"aborted: {exc}")
@@ -221,8 +282,13 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
         _abort(acq, writer, f"aborted: {msg}")
         status.put(("error", msg + "\n" + traceback.format_exc(limit=3)))
     finally:
+        if watch is not None:
+            orphaned = watch.dead.is_set()
+            watch.stop()
         if reader is not None:
             reader.close()
+            if watch is not None and orphaned:
+                reader.release_orphaned()
     if code:
         raise SystemExit(code)
 

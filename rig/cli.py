@@ -147,8 +147,12 @@ def run_profile(
                                              "default <data_folder>/<time>-<profile>.h5")] = None,
     lockstep: Annotated[bool, typer.Option(
         help="simulated rig only: step as fast as possible instead of in real time")] = False,
+    force: Annotated[bool, typer.Option(
+        "--force", help="overwrite the --out file if it exists")] = False,
 ) -> None:
-    """Press the key with PROFILE on the rig and record everything into a run file."""
+    """Press the key with PROFILE on the rig and record everything into a run file.
+
+    Exit codes: 0 complete, 1 aborted (last line ``ABORTED: <reason>``), 2 refused input."""
     from rig import config as rig_config
     from rig.services import run as svc
 
@@ -159,7 +163,10 @@ def run_profile(
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
-                         on_line=_plain)
+                         on_line=_plain, force=force)
+    except svc.RunStopped as exc:
+        err.print(f"ABORTED: {exc}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(code=1) from None
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
     lat = report.lateness
@@ -177,10 +184,10 @@ def run_profile(
     for name, r in report.repeatability.items():
         _plain(f"repeatability {name}: trial-to-trial RMS deviation {r['rms_deviation']:.3g} "
                       f"({r['relative'] * 100:.2f} % of its range)")
-    if not report.complete:
-        err.print(f"run {report.status}", markup=False, highlight=False, soft_wrap=True)
     _plain(f"wrote {report.path}")
     if not report.complete:
+        reason = report.status.removeprefix("aborted:").strip()
+        err.print(f"ABORTED: {reason}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1)
 # ---- end of rig run ----
 

@@ -22,10 +22,13 @@ import gc
 import importlib
 import math
 import multiprocessing as mp
+import os
 import queue
 import signal
 import sys
+import threading
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -106,6 +109,33 @@ class _Abort(Exception):
     pass
 
 
+class _Stopped(BaseException):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP) that arrived before the loop was running."""
+
+
+STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
+                signal.SIGHUP: "hung up (SIGHUP: terminal closed)"}
+
+
+def _install_stop_handlers(state: dict[str, Any]) -> dict[int, Any]:
+    """SIGINT, SIGTERM and SIGHUP all stop the run the same way: in the loop they set the reason
+    (that same cycle writes 0 V); before it they raise ``_Stopped`` so start-up ends at once.
+    Only the main thread can install handlers; elsewhere (a test's thread) none are set."""
+    def handler(signum: int, _frame: Any) -> None:
+        why = STOP_SIGNALS.get(signum, f"signal {signum}")
+        if state.get("reason") is None:
+            state["reason"] = why
+        if not state.get("in_loop"):
+            raise _Stopped(why)
+
+    old: dict[int, Any] = {}
+    if threading.current_thread() is not threading.main_thread():
+        return old
+    for sig in STOP_SIGNALS:
+        old[sig] = signal.signal(sig, handler)
+    return old
+
+
 def lateness_stats(lateness: np.ndarray, missed: np.ndarray, threshold: float) -> dict[str, float]:
     """Median, 99th percentile and maximum lateness (s), missed ticks and late cycles."""
     if lateness.size == 0:
@@ -177,16 +207,63 @@ def tracking_error(path: Path, trial: int = 0, tail_s: float = 0.05) -> dict[str
             "samples": int(keep.sum())}
 
 
-def _default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
+MAX_NAME = 200  # characters of a run file's name (file systems allow 255 bytes)
+
+
+def _safe_name(name: str) -> str:
+    """A profile name as a file-name part: only letters, digits, ``-``, ``_`` and ``.``
+    (a name such as ``../../escaped`` becomes ``.._.._escaped``: no separator survives, so the
+    file stays in the data folder), cut to keep the whole name under ``MAX_NAME``."""
+    clean = "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip(".") or "run"
+    return clean[:MAX_NAME - 40]
+
+
+def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = None,
+               *, force: bool = False) -> Path:
+    """The run file's path, created empty and exclusively (O_CREAT | O_EXCL) so two runs never
+    share a file: ``<data_folder>/<time>-<profile>.h5``, then ``...-2.h5``, ``-3`` ... when
+    taken. ``out`` is the user's file: refused (one-line ValueError) when it exists unless
+    ``force``, or when its name is too long."""
+    if out is not None:
+        path = Path(out)
+        if len(path.name) > MAX_NAME:
+            raise ValueError(f"--out: file name of {len(path.name)} characters is too long "
+                             f"(at most {MAX_NAME})")
+        if path.exists() and not force:
+            raise ValueError(f"--out: {path} exists; use --force to overwrite it")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not force:
+            _create_exclusive(path)
+        return path
+    folder = Path(cfg.data_folder)
+    folder.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return cfg.data_folder / f"{stamp}-{profile.name}.h5"
+    base = f"{stamp}-{_safe_name(profile.name)}"
+    for n in range(1, 1000):
+        path = folder / (f"{base}.h5" if n == 1 else f"{base}-{n}.h5")
+        try:
+            _create_exclusive(path)
+        except FileExistsError:
+            continue
+        return path
+    raise ValueError(f"data_folder: no free run-file name for {base} in {folder}")
+
+
+def _create_exclusive(path: Path) -> None:
+    fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    os.close(fd)
 
 
 def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
-        on_cycle: Callable[[CycleContext], None] | None = None) -> RunReport:
-    """Run the profile ``trials`` times on the configured rig; write one run file."""
+        on_cycle: Callable[[CycleContext], None] | None = None,
+        force: bool = False) -> RunReport:
+    """Run the profile ``trials`` times on the configured rig; write one run file.
+
+    SIGINT, SIGTERM and SIGHUP stop it like Ctrl-C; any exception in the loop is an abort
+    (its traceback goes to ``on_line`` and the file's ``abort_traceback`` metadata). A stop
+    before the acquisition has started raises ``RunStopped`` (no run file is left)."""
     say = on_line or (lambda s: None)
     if trials < 1:
         raise ValueError(f"trials: expected at least 1, got {trials}")
@@ -198,7 +275,34 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     cals = calrecords.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = demand_source(cfg, full_records)
-    path = Path(out) if out is not None else _default_path(cfg, profile)
+    stop_state: dict[str, Any] = {"reason": None, "in_loop": False}
+    old_handlers = _install_stop_handlers(stop_state)
+    try:
+        path = claim_path(cfg, profile, out, force=force)
+        try:
+            return _run(profile, cfg, trials, path, lockstep, ctl, say, on_cycle, full_records,
+                        cals, feedforward, compensation, stop_state)
+        except BaseException as exc:
+            with contextlib.suppress(OSError):  # refused or stopped before the file was begun
+                if path.is_file() and path.stat().st_size == 0:
+                    path.unlink()
+            if isinstance(exc, _Stopped):
+                raise RunStopped(f"{exc} before the run started; no run file written") from None
+            raise
+    finally:
+        for sig, old in old_handlers.items():
+            signal.signal(sig, old)
+
+
+class RunStopped(RuntimeError):
+    """A stop signal arrived while the run was starting (nothing moved, no file kept)."""
+
+
+def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, lockstep: bool,
+         ctl: Controller, say: Callable[[str], None],
+         on_cycle: Callable[[CycleContext], None] | None, full_records: list[dict[str, Any]],
+         cals: Any, feedforward: Callable[[profiles.Profile, float], float],
+         compensation: dict[str, Any], stop_state: dict[str, Any]) -> RunReport:
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
     spc = cfg.rates.samples_per_cycle
@@ -233,8 +337,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     sent = [0] * trials
     reason: str | None = None
     last_tick = -1
-    interrupted = {"flag": False}
-    old_handler: Any = None
+    abort_tb: str | None = None
     old_switch = sys.getswitchinterval()
     realtime = False
     pinned: set[int] | None = None  # the CPUs the loop's thread could use before pinning
@@ -265,7 +368,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         say(f"running {profile.name} ({profile.duration:.3f} s, peak {profile.peak:g} N) x "
             f"{trials} on {cfg.backend} rig{' in lock-step' if daq_lockstep(daq) else ''}")
 
-        old_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.update(flag=True))
+        stop_state["in_loop"] = True  # from here a stop signal sets the reason, never raises
         limiter = motor_torque.Limiter(cfg.limits, dt)
         scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
                                                          cfg.channels.drive_output)
@@ -300,8 +403,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             t = (local - settle) * dt
             late = tick.lateness_s > cfg.limits.late_threshold_s or tick.missed > 0
             streak = streak + 1 if late else 0
-            if interrupted["flag"]:
-                reason = "interrupted (Ctrl-C)"
+            if stop_state["reason"] is not None:
+                reason = stop_state["reason"]
             elif monitor.fault:
                 reason = monitor.fault
             elif not proc.is_alive():
@@ -338,11 +441,26 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
                 _send_commands(ctrl, rows, sent)
     except _Abort as exc:
         reason = str(exc)
-    except KeyboardInterrupt:
-        reason = "interrupted (Ctrl-C)"
-    except (DriveError, RuntimeError, OSError) as exc:
+    except (KeyboardInterrupt, _Stopped):
+        reason = stop_state["reason"] or "interrupted (Ctrl-C)"
+        if stop_state["in_loop"] is False and proc is None:
+            stop_state["in_loop"] = True
+            _safe(lambda: daq.write_volts(0.0))
+            _safe(daq.close)
+            if sim_drive is not None:
+                _safe(sim_drive.close)
+            if drive is not None:
+                _safe(drive.close)
+            raise _Stopped(reason) from None
+    except (DriveError, OSError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
+    except Exception as exc:  # anything else (a user controller's bug): abort, keep the trace
+        reason = f"{type(exc).__name__}: {exc}"
+        abort_tb = traceback.format_exc()
+        for ln in abort_tb.rstrip().splitlines():
+            say(ln)
     finally:
+        stop_state["in_loop"] = True
         _safe(lambda: daq.write_volts(0.0))
         if realtime:
             pacing.normal_priority()
@@ -357,8 +475,6 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             _safe(drive.disable)
         if monitor is not None:
             monitor.stop()
-        if old_handler is not None:
-            signal.signal(signal.SIGINT, old_handler)
 
     status = "complete" if reason is None else f"aborted: {reason}"
     arr = np.array(rows, dtype=float).reshape(-1, 11)
@@ -367,7 +483,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
     try:
         samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
-                          (last_tick + 1) * spc, path, cfg)
+                          (last_tick + 1) * spc, path, cfg, abort_tb)
     finally:
         daq.close()
         if drive is not None:
@@ -375,7 +491,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         if sim_drive is not None:
             sim_drive.close()
     final = runfile.read(path).status
-    rep = repeatability(path) if trials > 1 else {}
+    # no repeatability figure over truncated trials: only a complete run gets one
+    rep = repeatability(path) if trials > 1 and final == "complete" else {}
     if rep:
         w = runfile.RunWriter.reopen(path)
         w.add_metadata("repeatability", rep)
@@ -454,9 +571,11 @@ def _send_commands(ctrl: Any, rows: list[list[float]], sent: list[int]) -> None:
 
 def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: list[int],
             trials: int, status: str, stats: dict[str, float], end_sample: int, path: Path,
-            cfg: RigConfig) -> int | None:
+            cfg: RigConfig, abort_tb: str | None = None) -> int | None:
     """Stop the acquisition process and see the file closed; recover it if the process died."""
-    meta = {"loop_lateness": stats}
+    meta: dict[str, Any] = {"loop_lateness": stats}
+    if abort_tb is not None:
+        meta["abort_traceback"] = abort_tb
     tattrs: dict[int, dict[str, Any]] = {}
     if proc is None:
         return None
@@ -501,7 +620,8 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
         if have < part.shape[0]:
             tw.append("commands", {c: part[have:, j] for j, c in enumerate(_COLS)},
                       COMMAND_UNITS)
-    w.add_metadata("loop_lateness", stats)
+    for name, value in meta.items():
+        w.add_metadata(name, value)
     if errors and final != f"aborted: {errors[0]}":
         w.add_metadata("acquisition_error", errors[0])
     w.close(final)
