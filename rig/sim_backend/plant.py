@@ -235,7 +235,8 @@ DRIVE_LOG_ENV = "RIG_SIM_DRIVE_LOG"
 
 class DriveLog:
     """The simulated drive's own log, kept by the plant process (it outlives the run's
-    process): one JSON line per change of the demand (volts applied to a control period) or of
+    process) and by the simulated serial drive: one JSON line per command received
+    (``command``), per change of the demand (volts applied to a control period) or of
     the drive's state (enabled, fault), with the wall-clock time ``t`` (s, time.time()) and
     the control period ``tick``. Written only when ``$RIG_SIM_DRIVE_LOG`` names a file (the
     fault tests read it); line-buffered, so a killed plant leaves every line so far."""
@@ -262,6 +263,10 @@ class DriveLog:
         if now != self.last_state:
             self.last_state = now
             self._write({"tick": tick, "enabled": now[0], "fault": now[1]})
+
+    def command(self, text: str) -> None:
+        """A command received over the serial link (the simulated drive's side)."""
+        self._write({"command": text})
 
     def event(self, tick: int, what: str) -> None:
         self._write({"tick": tick, "event": what})
