@@ -254,3 +254,47 @@ def test_existing_out_file_is_not_overwritten_without_force(tmp_path: Path) -> N
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode == 2 and "--force" in out.strip().splitlines()[-1], out
     assert (tmp_path / "run.h5").read_bytes() == b"precious"
+
+
+def test_only_the_cut_trial_is_aborted_and_no_repeatability(tmp_path: Path) -> None:
+    from rig import config, runfile
+    from rig.services import run as svc
+
+    prof = tmp_path / "short.yaml"
+    prof.write_text("name: short\nsegments:\n  - {hold: 0.01}\n  - {ramp: 0.05, to: 5}\n"
+                    "  - {ramp: 0.05, to: 0}\n")
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "data_folder": str(tmp_path),
+                               "drive": {"port": "sim", "poll_period_s": 0.01},
+                               "sim": {"realtime": False}, "loop": {"rest_s": 0.05}})
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if ctx.trial == 1 and ctx.t >= 0.03:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    rep = svc.run(prof, cfg, trials=3, out=tmp_path / "cut.h5", on_cycle=hook)
+    assert rep.status == "aborted: terminated (SIGTERM)"
+    assert rep.repeatability == {}  # never over truncated trials
+    run = runfile.read(rep.path)
+    assert "repeatability" not in run.metadata
+    assert [t.attrs["status"] for t in run.trials][:2] == ["complete",
+                                                           "aborted: terminated (SIGTERM)"]
+    assert all(t.attrs["status"].startswith("aborted") for t in run.trials[2:])
+
+
+@pytest.mark.slow
+def test_stop_in_the_first_second_ends_within_2_s(tmp_path: Path) -> None:
+    _rig(tmp_path)
+    proc = _start(tmp_path)
+    assert proc.stdout is not None
+    first = proc.stdout.readline()  # "rig config: ...": the run is starting
+    assert first.startswith("rig config"), first
+    time.sleep(0.3)
+    t = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=30)
+    took = time.monotonic() - t
+    print(f"Ctrl-C during start-up: exit after {took:.2f} s")
+    assert took < 2.0, out
+    assert proc.returncode == 1
+    assert out.strip().splitlines()[-1].startswith("ABORTED: interrupted (Ctrl-C)"), out
+    assert not (tmp_path / "run.h5").exists()  # nothing started: no file left

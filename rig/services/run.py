@@ -482,8 +482,10 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
     stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
     try:
+        # only the trial that was cut is aborted: those before it ran to their end
+        done_trials = trials if reason is None else max(0, last_tick) // per_trial
         samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
-                          (last_tick + 1) * spc, path, cfg, abort_tb)
+                          (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
         daq.close()
         if drive is not None:
@@ -571,12 +573,12 @@ def _send_commands(ctrl: Any, rows: list[list[float]], sent: list[int]) -> None:
 
 def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: list[int],
             trials: int, status: str, stats: dict[str, float], end_sample: int, path: Path,
-            cfg: RigConfig, abort_tb: str | None = None) -> int | None:
+            cfg: RigConfig, abort_tb: str | None = None, done_trials: int = 0) -> int | None:
     """Stop the acquisition process and see the file closed; recover it if the process died."""
     meta: dict[str, Any] = {"loop_lateness": stats}
     if abort_tb is not None:
         meta["abort_traceback"] = abort_tb
-    tattrs: dict[int, dict[str, Any]] = {}
+    tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
     if proc is None:
         return None
     if proc.is_alive():
@@ -622,6 +624,9 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
                       COMMAND_UNITS)
     for name, value in meta.items():
         w.add_metadata(name, value)
+    for k, attrs in tattrs.items():
+        if f"trial_{k:03d}" in w.file:
+            w.trial(k).set_attrs(**attrs)
     if errors and final != f"aborted: {errors[0]}":
         w.add_metadata("acquisition_error", errors[0])
     w.close(final)

@@ -183,6 +183,8 @@ class SimDaq(Daq):
             if self.index >= 0 and self.link.cycles_done <= self.index:
                 self.link.put(self.index, 0.0)
             self.link.request_stop()
+            if self.plant is not None and not self.link.ready:
+                self.plant.kill()  # still building its model (stopped at start): nothing to finish
             if self.plant is not None:
                 self.plant.join(timeout=30.0)
                 if self.plant.is_alive():
