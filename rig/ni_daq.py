@@ -126,7 +126,8 @@ class NiDaq(Daq):
             self.pace.close()
         del self._fb
         self.feedback.close()
-        self.feedback.unlink()
+        with contextlib.suppress(FileNotFoundError):  # the supervisor may have removed it
+            self.feedback.unlink()
 
 
 class NiReader(Reader):

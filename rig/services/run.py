@@ -113,8 +113,9 @@ class _Stopped(BaseException):
     """A stop signal (SIGINT, SIGTERM, SIGHUP) that arrived before the loop was running."""
 
 
-STOP_SIGNALS = {signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
-                signal.SIGHUP: "hung up (SIGHUP: terminal closed)"}
+STOP_SIGNALS: dict[int, str] = {
+    signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
+    signal.SIGHUP: "hung up (SIGHUP: terminal closed)"}
 
 
 def _install_stop_handlers(state: dict[str, Any]) -> dict[int, Any]:
