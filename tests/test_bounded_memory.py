@@ -34,3 +34,34 @@ def test_the_simulated_rig_steps_without_history() -> None:
     for _ in range(50):
         rig.cycle(1.0)
     assert rig.stepper.keep_history is False and rig.stepper._times == []
+
+
+class _Q:
+    def __init__(self) -> None:
+        self.items: list = []
+
+    def put(self, item) -> None:
+        self.items.append(item)
+
+
+def test_loop_records_keep_only_the_last_rows_once_sent() -> None:
+    from rig.services.run import _Records
+
+    rec = _Records(trials=2, total=300, keep=40)
+    q = _Q()
+    for i in range(250):
+        k = 0 if i < 150 else 1
+        rec.add([i * 2e-3, i, 1.0, 1.0, 1.0, 0.1, 0.0, 0.5, 1e-4 * (i % 7), float(i == 3), k])
+        if rec.unsent() >= 50:
+            rec.send(q)
+    assert len(rec.rows) <= 50 + 40  # never the whole run
+    rec.send(q)
+    sent = {0: [], 1: []}
+    for _, k, data in q.items:
+        sent[k].append(data["tick"])
+    assert np.array_equal(np.concatenate(sent[0]), np.arange(150))  # every row sent once
+    assert np.array_equal(np.concatenate(sent[1]), np.arange(150, 250))
+    first, part = rec.trial_rows(1)  # the kept rows of trial 1 and where they start in it
+    assert part.shape[0] == 40 and first == 60 and part[0, 1] == 210
+    assert rec.n == 250 and rec.missed[:rec.n].sum() == 1
+    assert rec.lateness[:rec.n].max() == pytest.approx(6e-4)

@@ -334,8 +334,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     proc: Any = None
     drive: Drive | None = None
     monitor: DriveMonitor | None = None
-    rows: list[list[float]] = []
-    sent = [0] * trials
+    rows = _Records(trials, total, keep=int(KEEP_RECORDS_S * hz))
     reason: str | None = None
     last_tick = -1
     abort_tb: str | None = None
@@ -416,8 +415,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                           f"{tick.lateness_s * 1e3:.2f} ms)")
             if reason is not None:
                 daq.write_volts(0.0)
-                rows.append([t, i, 0.0, 0.0, 0.0, 0.0, 0.0, math.nan, tick.lateness_s,
-                             tick.missed, k])
+                rows.add([t, i, 0.0, 0.0, 0.0, 0.0, 0.0, math.nan, tick.lateness_s,
+                          tick.missed, k])
                 last_tick = i
                 break
             if k != trial_now:
@@ -434,12 +433,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             volts = scaling.volts(demand)
             daq.write_volts(volts)
             last_tick = i
-            rows.append([t, i, target, ff, demand, volts, float(limited), measured,
+            rows.add([t, i, target, ff, demand, volts, float(limited), measured,
                          tick.lateness_s, tick.missed, k])
             if on_cycle is not None:
                 on_cycle(CycleContext(i, k, t, proc.pid, sim_drive, daq))
-            if len(rows) - sum(sent) >= 50:
-                _send_commands(ctrl, rows, sent)
+            if rows.unsent() >= 50:
+                rows.send(ctrl)
     except _Abort as exc:
         reason = str(exc)
     except (KeyboardInterrupt, _Stopped):
@@ -478,14 +477,14 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             monitor.stop()
 
     status = "complete" if reason is None else f"aborted: {reason}"
-    arr = np.array(rows, dtype=float).reshape(-1, 11)
-    stats = lateness_stats(arr[:, 8], arr[:, 9], cfg.limits.late_threshold_s)
+    stats = lateness_stats(rows.lateness[:rows.n], rows.missed[:rows.n],
+                           cfg.limits.late_threshold_s)
     stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
     stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
     try:
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
-        samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
+        samples = _finish(proc, ctrl, status_q, rows, trials, status, stats,
                           (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
         daq.close()
@@ -562,19 +561,58 @@ _COLS = ("time", "tick", "target", "feedforward", "demand", "volts", "limited",
          "measured_force", "lateness", "missed")
 
 
-def _send_commands(ctrl: Any, rows: list[list[float]], sent: list[int]) -> None:
-    """Send the rows not yet sent, per trial (``sent[k]`` counts rows of trial k sent)."""
-    done = sum(sent)
-    arr = np.array(rows[done:], dtype=float).reshape(-1, 11)
-    for k in np.unique(arr[:, 10]).astype(int):
+KEEP_RECORDS_S = 10.0  # s of the loop's records kept after sending (the recovery's margin)
+
+
+class _Records:
+    """The loop's records (one row per cycle: the ``_COLS`` and the trial), sent to the
+    acquisition process in batches. Memory stays flat over long runs: only the last ``keep``
+    rows are kept once sent (enough to refill what a dead acquisition had not flushed), and
+    lateness and missed ticks go into arrays sized for the run up front."""
+
+    def __init__(self, trials: int, total: int, keep: int) -> None:
+        self.rows: list[list[float]] = []
+        self.base = 0                 # rows dropped from the front (all sent)
+        self.sent = [0] * trials      # rows of trial k sent
+        self.made = [0] * trials      # rows of trial k recorded
+        self.keep = max(keep, 1)
+        self.lateness = np.zeros(total + 1)
+        self.missed = np.zeros(total + 1)
+        self.n = 0
+
+    def add(self, row: list[float]) -> None:
+        self.rows.append(row)
+        self.made[int(row[10])] += 1
+        self.lateness[self.n] = row[8]
+        self.missed[self.n] = row[9]
+        self.n += 1
+
+    def unsent(self) -> int:
+        return self.base + len(self.rows) - sum(self.sent)
+
+    def send(self, ctrl: Any) -> None:
+        """Send the rows not yet sent, per trial; then drop all but the last ``keep``."""
+        done = sum(self.sent) - self.base
+        arr = np.array(self.rows[done:], dtype=float).reshape(-1, 11)
+        for k in np.unique(arr[:, 10]).astype(int):
+            part = arr[arr[:, 10] == k]
+            ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
+            self.sent[k] += part.shape[0]
+        excess = len(self.rows) - self.keep
+        if excess > 0:
+            del self.rows[:excess]
+            self.base += excess
+
+    def trial_rows(self, k: int) -> tuple[int, np.ndarray]:
+        """(index within trial k of its first kept row, the kept rows of trial k)."""
+        arr = np.array(self.rows, dtype=float).reshape(-1, 11)
         part = arr[arr[:, 10] == k]
-        ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
-        sent[k] += part.shape[0]
+        return self.made[k] - part.shape[0], part
 
 
-def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: list[int],
-            trials: int, status: str, stats: dict[str, float], end_sample: int, path: Path,
-            cfg: RigConfig, abort_tb: str | None = None, done_trials: int = 0) -> int | None:
+def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, status: str,
+            stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
+            abort_tb: str | None = None, done_trials: int = 0) -> int | None:
     """Stop the acquisition process and see the file closed; recover it if the process died."""
     meta: dict[str, Any] = {"loop_lateness": stats}
     if abort_tb is not None:
@@ -583,7 +621,7 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
     if proc is None:
         return None
     if proc.is_alive():
-        _send_commands(ctrl, rows, sent)
+        rows.send(ctrl)
         ctrl.put(("stop", end_sample, status, meta, tattrs))
         proc.join(timeout=30.0)
     msgs = []
@@ -610,9 +648,8 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
     if not path.is_file():
         return None
     w = runfile.RunWriter.reopen(path)
-    arr = np.array(rows, dtype=float).reshape(-1, 11)
     for k in range(trials):
-        part = arr[arr[:, 10] == k]
+        first, part = rows.trial_rows(k)
         if not part.shape[0]:
             continue
         grp = f"trial_{k:03d}"
@@ -620,9 +657,9 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
         if grp in w.file and "commands" in w.file[grp] and "time" in w.file[grp]["commands"]:
             have = int(w.file[grp]["commands"]["time"].shape[0])
         tw = w.trial(k)
-        if have < part.shape[0]:
-            tw.append("commands", {c: part[have:, j] for j, c in enumerate(_COLS)},
-                      COMMAND_UNITS)
+        if have < first + part.shape[0]:  # (a gap if the file lacks rows no longer kept)
+            tw.append("commands", {c: part[max(0, have - first):, j]
+                                   for j, c in enumerate(_COLS)}, COMMAND_UNITS)
     for name, value in meta.items():
         w.add_metadata(name, value)
     for k, attrs in tattrs.items():
