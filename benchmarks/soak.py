@@ -66,12 +66,18 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=10.0, help="length of the run (default 10)")
     ap.add_argument("--profile", type=Path, default=ROOT / "profiles" / "forte.yaml")
     ap.add_argument("--out", type=Path, default=None, help="folder for the rig config and file")
+    ap.add_argument("--light", action="store_true",
+                    help="simulate the action without effects and strain gauge (a plant that "
+                         "keeps up on a loaded machine)")
     ap.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling period (s)")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rig-soak-"))
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"name": "soak", "backend": "sim", "drive": {"port": "sim"},
            "sim": {"realtime": True}, "data_folder": str(out)}
+    if args.light:
+        cfg["sim"]["effects"] = []  # type: ignore[index]
+        cfg["channels"] = {"strain_gauge": {"enabled": False}}
     rig_file = out / "soak-rig.yaml"
     rig_file.write_text(yaml.safe_dump(cfg))
 
@@ -126,6 +132,8 @@ def main() -> int:
         samples, counters, ticks, late, missed = 0, [], [], [], []
         for name in sorted(k for k in f if k.startswith("trial_")):
             g = f[name]
+            if "channels" not in g or "commands" not in g:
+                continue
             s = g["channels/sample"][:]
             samples += s.size
             counters.append(s)
@@ -133,11 +141,13 @@ def main() -> int:
             late.append(g["commands/lateness"][:])
             missed.append(g["commands/missed"][:])
         hz = rc.rates.control_hz
-    s = np.concatenate(counters)
+    s = np.concatenate(counters) if counters else np.zeros(0)
     span = int(s.max() - s.min() + 1) if s.size else 0
     gaps = int(np.sum(np.diff(s) != 1)) if s.size else 0
     print(f"file status {status}; samples {samples}, counter span {span}, lost "
           f"{span - samples}, counter jumps {gaps}")
+    if not ticks:
+        return 1
     tick = np.concatenate(ticks)
     lat = np.concatenate(late) * 1e3
     miss = np.concatenate(missed)

@@ -21,9 +21,12 @@ Messages to the run (queue ``status``): ("ready",), ("started",),
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import functools
 import os
 import queue
+import shutil
 import signal
 import time
 import traceback
@@ -65,6 +68,22 @@ CHANNEL_DOCS = {
     "force": "force on the key top from the load cell (calibration in metadata)",
     "shank_strain": "hammer-shank strain at the gauge, + = tension",
 }
+
+
+SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
+
+
+class DiskFull(OSError):
+    """Too little free space left to write the next block safely."""
+
+
+def bytes_per_sample(cfg: RigConfig) -> int:
+    """Upper estimate of the run file's bytes per 2 kHz sample: raw and calibrated channels
+    (time, sample counter, one per bridge, counts and SI per encoder) as float64, plus the
+    loop's records (10 float64 per control period)."""
+    channels = 4 + 2 * int(cfg.channels.strain_gauge.enabled) + 2 * len(cfg.channels.encoders)
+    per_tick = 8 * len(COMMAND_UNITS) / cfg.rates.samples_per_cycle
+    return int(8 * channels + per_tick) + 8
 
 
 @dataclass
@@ -142,6 +161,7 @@ class Acquisition:
             self.trials[int(i)].rows.append(rows[which == i])
 
     def write_pending(self) -> None:
+        self.check_space()
         for tr in self.trials:
             if tr.writer is None and (tr.rows or tr.commands):
                 tr.writer = self.writer.trial(tr.index)
@@ -159,6 +179,19 @@ class Acquisition:
                 tr.writer.append("commands", cmd, COMMAND_UNITS, COMMAND_DOCS)
             tr.commands.clear()
         self.writer.flush()
+
+    def check_space(self) -> None:
+        """DiskFull before a write that could meet a full disk: HDF5 after ENOSPC may leave a
+        half-written block (or an unreadable file), so the acquisition stops while
+        ``SPACE_MARGIN`` bytes are still free for closing the file and the loop's records."""
+        rows = sum(r.shape[0] for tr in self.trials for r in tr.rows)
+        cmds = sum(next(iter(c.values())).size for tr in self.trials for c in tr.commands
+                   if c)
+        need = rows * bytes_per_sample(self.cfg) + cmds * 8 * len(COMMAND_UNITS)
+        free = shutil.disk_usage(self.writer.path.parent).free
+        if free < need + SPACE_MARGIN:
+            raise DiskFull(f"disk full ({free // 1024} KB free in {self.writer.path.parent}, "
+                           f"kept everything written so far)")
 
     def finish(self, status: str, metadata: dict[str, Any], trial_attrs: dict[int, Any]) -> None:
         self.write_pending()
@@ -272,6 +305,20 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
         if exc.watch.error:
             why += f" (making the rig safe failed: {exc.watch.error})"
         _abort(acq, writer, f"aborted: {why}")
+    except DiskFull as exc:  # nothing more written: close with what the file has
+        code = 1
+        writer.close(f"aborted: {exc}")
+        status.put(("error", str(exc)))
+    except OSError as exc:
+        code = 1
+        if exc.errno == errno.ENOSPC:
+            msg = f"disk full ({exc})"
+            with contextlib.suppress(Exception):
+                writer.close(f"aborted: {msg}")
+        else:
+            msg = f"acquisition failed: {type(exc).__name__}: {exc}"
+            _abort(acq, writer, f"aborted: {msg}")
+        status.put(("error", msg))
     except DaqFault as exc:
         code = 1
         _abort(acq, writer, f"aborted: {exc}")

@@ -24,6 +24,7 @@ import math
 import multiprocessing as mp
 import os
 import queue
+import shutil
 import signal
 import sys
 import threading
@@ -208,6 +209,30 @@ def tracking_error(path: Path, trial: int = 0, tail_s: float = 0.05) -> dict[str
             "samples": int(keep.sum())}
 
 
+FILE_OVERHEAD = 2 * 1024 * 1024  # bytes: metadata (config, profile, records) and HDF5 headers
+
+
+def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
+                     folder: Path) -> int:
+    """Refuse (one-line ValueError) a run whose file would not fit in ``folder``'s free space
+    (the whole run's samples at ``bytes_per_sample``, the file's overhead and the margin the
+    acquisition keeps free); the estimate in bytes."""
+    from rig.acquisition import SPACE_MARGIN, bytes_per_sample
+
+    seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
+    need = int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) + FILE_OVERHEAD \
+        + SPACE_MARGIN
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < need:
+        raise ValueError(f"data_folder: {folder} has {free / 1e6:.1f} MB free; this run "
+                         f"({trials} x {profile.name}, {seconds:.1f} s) needs about "
+                         f"{need / 1e6:.1f} MB")
+    return need
+
+
 MAX_NAME = 200  # characters of a run file's name (file systems allow 255 bytes)
 
 
@@ -279,6 +304,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     stop_state: dict[str, Any] = {"reason": None, "in_loop": False}
     old_handlers = _install_stop_handlers(stop_state)
     try:
+        check_free_space(cfg, profile, trials, Path(out).parent if out is not None
+                         else Path(cfg.data_folder))
         path = claim_path(cfg, profile, out, force=force)
         try:
             return _run(profile, cfg, trials, path, lockstep, ctl, say, on_cycle, full_records,
