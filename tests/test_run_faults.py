@@ -31,7 +31,9 @@ def _rig(tmp: Path, **loop) -> Path:
            "drive": {"port": "sim", "poll_period_s": 0.01},
            "sim": {"realtime": True, "effects": []},
            "channels": {"strain_gauge": {"enabled": False}},
-           "loop": {"rest_s": 0.05, **loop}}
+           "loop": {"rest_s": 0.05, **loop},
+           # a plant starved by a loaded test machine must not end the run first
+           "acquisition": {"buffer_s": 10.0}}
     path = tmp / "rig.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
@@ -131,8 +133,8 @@ def _check_safe_and_clean(tmp: Path, proc: subprocess.Popen[str], kids: dict[str
     try:
         out, _ = proc.communicate(timeout=within_s + 30)
     except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise AssertionError(f"rig run did not end:\n{proc.communicate()[0]}") from None
     log = read_drive_log(str(tmp / "drive.log"))
     if plant_alive:  # the simulated motor applied 0 V last, with the drive disabled
         volts = [e for e in log if "volts" in e]
@@ -298,3 +300,50 @@ def test_stop_in_the_first_second_ends_within_2_s(tmp_path: Path) -> None:
     assert proc.returncode == 1
     assert out.strip().splitlines()[-1].startswith("ABORTED: interrupted (Ctrl-C)"), out
     assert not (tmp_path / "run.h5").exists()  # nothing started: no file left
+
+
+@pytest.fixture
+def small_fs(tmp_path: Path):
+    """A tmpfs of 8 MB mounted for the test (root only)."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small filesystem needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)],
+                         capture_output=True, text=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_a_run_that_cannot_fit_is_refused_in_one_line(tmp_path: Path, small_fs: Path) -> None:
+    _rig(tmp_path)
+    prof = "name: long\nsegments:\n  - {hold: 30}\n"  # 30 s: ~6 MB of samples + overhead
+    proc = _start(tmp_path, profile=prof, out=str(small_fs / "big.h5"))
+    out, _ = proc.communicate(timeout=120)
+    lines = out.strip().splitlines()
+    assert proc.returncode == 2, out
+    assert lines[-1].startswith("error: data_folder: ") and "MB free" in lines[-1], out
+    assert list(small_fs.iterdir()) == []  # nothing written
+
+
+@pytest.mark.slow
+def test_disk_full_mid_run_keeps_what_was_written(tmp_path: Path, small_fs: Path) -> None:
+    _rig(tmp_path)
+    run = small_fs / "full.h5"
+    proc = _start(tmp_path, out=str(run))
+    _wait_pushing(tmp_path, proc)
+    time.sleep(0.3)
+    kids, shm = _snapshot(proc)
+    free = os.statvfs(small_fs).f_bavail * os.statvfs(small_fs).f_frsize
+    t = time.time()
+    with open(small_fs / "filler", "wb") as f:  # another program fills the disk
+        f.write(b"\0" * max(0, free - 300 * 1024))
+    _, out = _check_safe_and_clean(tmp_path, proc, kids, shm, run, reason="disk full",
+                                   t_fault=t)
+    assert proc.returncode == 1
+    assert out.strip().splitlines()[-1].startswith("ABORTED: disk full"), out
+    assert out.count("Traceback") == 0, out

@@ -663,6 +663,9 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, st
         proc.kill()
         proc.join(timeout=5.0)
         errors.append("the acquisition process did not stop; killed")
+    # the acquisition is gone: what is still in the command queue's pipe has no reader, and
+    # joining its feeder thread at exit would hang the run's process for good
+    ctrl.cancel_join_thread()
     ctrl.close()
     status_q.close()
     if done and proc.exitcode == 0:
