@@ -347,3 +347,42 @@ def test_disk_full_mid_run_keeps_what_was_written(tmp_path: Path, small_fs: Path
     assert proc.returncode == 1
     assert out.strip().splitlines()[-1].startswith("ABORTED: disk full"), out
     assert out.count("Traceback") == 0, out
+
+
+def test_a_drive_that_does_not_answer_ends_the_run_within_2_s(tmp_path: Path) -> None:
+    import threading
+
+    from rig import config
+    from rig.services import run as svc
+
+    master, slave = os.openpty()  # a serial line with nothing answering on it
+    try:
+        cfg = config.from_mapping({
+            "name": "t", "backend": "sim", "data_folder": str(tmp_path),
+            "drive": {"port": os.ttyname(slave), "timeout_s": 0.5},
+            "sim": {"realtime": False}, "loop": {"rest_s": 0.05}})
+        prof = tmp_path / "p.yaml"
+        prof.write_text("name: p\nsegments:\n  - {ramp: 0.05, to: 5}\n")
+        out = tmp_path / "mute.h5"
+        seen: dict[str, float] = {}
+
+        def watch() -> None:  # the first command the rig sends to the mute drive
+            import select
+
+            ready, _, _ = select.select([master], [], [], 120)
+            seen["asked"] = time.monotonic()
+
+        th = threading.Thread(target=watch, daemon=True)
+        th.start()
+        rep = svc.run(prof, cfg, out=out)
+        seen["end"] = time.monotonic()
+        th.join(timeout=1)
+    finally:
+        os.close(master)
+        os.close(slave)
+    took = seen["end"] - seen["asked"]
+    print(f"mute drive: run ended {took:.2f} s after its first command to the drive")
+    assert rep.status.startswith("aborted: DriveError") and "no answer" in rep.status
+    assert took < 2.0
+    with h5py.File(out, "r") as f:
+        assert str(f.attrs["status"]).startswith("aborted: DriveError")

@@ -588,6 +588,7 @@ _COLS = ("time", "tick", "target", "feedforward", "demand", "volts", "limited",
          "measured_force", "lateness", "missed")
 
 
+ACQUISITION_EXIT_S = 1.0  # s: the acquisition's exit after it closed the file and said so
 KEEP_RECORDS_S = 10.0  # s of the loop's records kept after sending (the recovery's margin)
 
 
@@ -647,14 +648,25 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, st
     tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
     if proc is None:
         return None
+    msgs = []
     if proc.is_alive():
         rows.send(ctrl)
         ctrl.put(("stop", end_sample, status, meta, tattrs))
-        proc.join(timeout=30.0)
-    msgs = []
+        # wait for its answer (the file is closed by then), not for its interpreter's exit
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end:
+            try:
+                msgs.append(status_q.get(timeout=0.02))
+            except queue.Empty:
+                if not proc.is_alive():
+                    break
+                continue
+            if msgs[-1][0] in ("done", "error"):
+                break
+        proc.join(timeout=ACQUISITION_EXIT_S)
     while True:
         try:
-            msgs.append(status_q.get(timeout=0.2))
+            msgs.append(status_q.get(timeout=0.05))
         except queue.Empty:
             break
     done = [m for m in msgs if m[0] == "done"]
@@ -662,13 +674,14 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, st
     if proc.is_alive():
         proc.kill()
         proc.join(timeout=5.0)
-        errors.append("the acquisition process did not stop; killed")
+        if not done:
+            errors.append("the acquisition process did not stop; killed")
     # the acquisition is gone: what is still in the command queue's pipe has no reader, and
     # joining its feeder thread at exit would hang the run's process for good
     ctrl.cancel_join_thread()
     ctrl.close()
     status_q.close()
-    if done and proc.exitcode == 0:
+    if done and proc.exitcode in (0, -signal.SIGKILL):  # (killed while exiting, file closed)
         return int(done[0][1])
     # the acquisition process died or failed: finish the file here
     why = errors[0] if errors else f"the acquisition process died (exit code {proc.exitcode})"
