@@ -386,3 +386,30 @@ def test_a_drive_that_does_not_answer_ends_the_run_within_2_s(tmp_path: Path) ->
     assert took < 2.0
     with h5py.File(out, "r") as f:
         assert str(f.attrs["status"]).startswith("aborted: DriveError")
+
+
+def test_run_file_names_stay_in_the_data_folder_and_are_claimed_once(tmp_path: Path) -> None:
+    from rig import config, profiles
+    from rig.services import run as svc
+
+    cfg = config.from_mapping({"backend": "sim", "data_folder": str(tmp_path / "runs")})
+
+    def prof(name: str) -> profiles.Profile:
+        return profiles.Profile(name=name, time=np.array([0.0, 0.1]),
+                                force=np.array([0.0, 1.0]))
+
+    esc = svc.claim_path(cfg, prof("../../escaped"))
+    assert esc.parent == tmp_path / "runs" and esc.name.endswith("-_.._escaped.h5")
+    again = svc.claim_path(cfg, prof("../../escaped"))  # same second: a second name
+    assert again != esc and again.parent == esc.parent and again.name.endswith("-2.h5")
+    long = svc.claim_path(cfg, prof("x" * 300))
+    assert long.parent == tmp_path / "runs" and len(long.name) <= svc.MAX_NAME
+    with pytest.raises(ValueError, match="too long") as exc:
+        svc.claim_path(cfg, prof("p"), tmp_path / ("y" * 300 + ".h5"))
+    assert "\n" not in str(exc.value)
+    mine = tmp_path / "mine.h5"
+    mine.write_bytes(b"keep")
+    with pytest.raises(ValueError, match="use --force"):
+        svc.claim_path(cfg, prof("p"), mine)
+    assert mine.read_bytes() == b"keep"
+    assert svc.claim_path(cfg, prof("p"), mine, force=True) == mine

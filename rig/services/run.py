@@ -238,7 +238,7 @@ MAX_NAME = 200  # characters of a run file's name (file systems allow 255 bytes)
 
 def _safe_name(name: str) -> str:
     """A profile name as a file-name part: only letters, digits, ``-``, ``_`` and ``.``
-    (a name such as ``../../escaped`` becomes ``.._.._escaped``: no separator survives, so the
+    (a name such as ``../../escaped`` becomes ``_.._escaped``: no separator survives, so the
     file stays in the data folder), cut to keep the whole name under ``MAX_NAME``."""
     clean = "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip(".") or "run"
     return clean[:MAX_NAME - 40]
