@@ -69,12 +69,17 @@ def main() -> int:
     ap.add_argument("--light", action="store_true",
                     help="simulate the action without effects and strain gauge (a plant that "
                          "keeps up on a loaded machine)")
+    ap.add_argument("--buffer-s", type=float, default=None,
+                    help="acquisition.buffer_s (the simulated card buffer; a larger one rides "
+                         "out a plant starved for seconds by other load)")
     ap.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling period (s)")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rig-soak-"))
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"name": "soak", "backend": "sim", "drive": {"port": "sim"},
            "sim": {"realtime": True}, "data_folder": str(out)}
+    if args.buffer_s is not None:
+        cfg["acquisition"] = {"buffer_s": args.buffer_s}
     if args.light:
         cfg["sim"]["effects"] = []  # type: ignore[index]
         cfg["channels"] = {"strain_gauge": {"enabled": False}}
