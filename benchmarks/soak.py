@@ -72,12 +72,17 @@ def main() -> int:
     ap.add_argument("--buffer-s", type=float, default=None,
                     help="acquisition.buffer_s (the simulated card buffer; a larger one rides "
                          "out a plant starved for seconds by other load)")
+    ap.add_argument("--drive-timeout-s", type=float, default=None,
+                    help="drive.timeout_s (the simulated drive's thread answers late when the "
+                         "machine is overloaded)")
     ap.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling period (s)")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rig-soak-"))
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"name": "soak", "backend": "sim", "drive": {"port": "sim"},
            "sim": {"realtime": True}, "data_folder": str(out)}
+    if args.drive_timeout_s is not None:
+        cfg["drive"]["timeout_s"] = args.drive_timeout_s  # type: ignore[index]
     if args.buffer_s is not None:
         cfg["acquisition"] = {"buffer_s": args.buffer_s}
     if args.light:
