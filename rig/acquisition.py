@@ -8,7 +8,12 @@ appends raw and calibrated channels to the current trial, flushing at least
 every ``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
 arrive over a queue and go to ``commands/``. A card overflow or a gap stops
 acquisition with a clear message: the file is closed ``aborted: ...`` and the
-process exits with code 1. SIGINT is ignored here: the run's process decides.
+process exits with code 1 (at once, os._exit, once the file is closed and the reason
+sent). SIGINT, SIGHUP and SIGTERM are ignored here: the run's process decides. This
+process is also the supervisor of the run's process (rig.supervisor): if that dies, it
+zeroes the demand, disables the drive, closes the file ``aborted: the controller
+process ... died`` and removes the shared blocks the dead process owned. Before each
+flush it checks the free space (``DiskFull``: ``aborted: disk full ...``).
 
 Messages from the run (queue ``ctrl``):
     ("go",)                                      start the sample clock
@@ -337,7 +342,12 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
             if watch is not None and orphaned:
                 reader.release_orphaned()
     if code:
-        raise SystemExit(code)
+        # the file is closed and the reason sent: exit now, so the run's process sees the death
+        # at once (an interpreter's teardown with numba and h5py loaded takes seconds under load)
+        with contextlib.suppress(Exception):
+            status.close()
+            status.join_thread()
+        os._exit(code)
 
 
 def _abort(acq: Acquisition, writer: runfile.RunWriter, status: str) -> None:
