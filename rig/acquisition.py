@@ -8,7 +8,12 @@ appends raw and calibrated channels to the current trial, flushing at least
 every ``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
 arrive over a queue and go to ``commands/``. A card overflow or a gap stops
 acquisition with a clear message: the file is closed ``aborted: ...`` and the
-process exits with code 1. SIGINT is ignored here: the run's process decides.
+process exits with code 1 (at once, os._exit, once the file is closed and the reason
+sent). SIGINT, SIGHUP and SIGTERM are ignored here: the run's process decides. This
+process is also the supervisor of the run's process (rig.supervisor): if that dies, it
+zeroes the demand, disables the drive, closes the file ``aborted: the controller
+process ... died`` and removes the shared blocks the dead process owned. Before each
+flush it checks the free space (``DiskFull``: ``aborted: disk full ...``).
 
 Messages from the run (queue ``ctrl``):
     ("go",)                                      start the sample clock
@@ -21,7 +26,12 @@ Messages to the run (queue ``status``): ("ready",), ("started",),
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import functools
+import os
 import queue
+import shutil
 import signal
 import time
 import traceback
@@ -35,6 +45,7 @@ from rig import calrecords, runfile
 from rig.calrecords import CalRecord
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault, open_reader
+from rig.supervisor import ControllerWatch, make_safe
 
 COMMAND_UNITS = {
     "time": "s", "tick": "1", "target": "N", "feedforward": "N", "demand": "N", "volts": "V",
@@ -62,6 +73,22 @@ CHANNEL_DOCS = {
     "force": "force on the key top from the load cell (calibration in metadata)",
     "shank_strain": "hammer-shank strain at the gauge, + = tension",
 }
+
+
+SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
+
+
+class DiskFull(OSError):
+    """Too little free space left to write the next block safely."""
+
+
+def bytes_per_sample(cfg: RigConfig) -> int:
+    """Upper estimate of the run file's bytes per 2 kHz sample: raw and calibrated channels
+    (time, sample counter, one per bridge, counts and SI per encoder) as float64, plus the
+    loop's records (10 float64 per control period)."""
+    channels = 4 + 2 * int(cfg.channels.strain_gauge.enabled) + 2 * len(cfg.channels.encoders)
+    per_tick = 8 * len(COMMAND_UNITS) / cfg.rates.samples_per_cycle
+    return int(8 * channels + per_tick) + 8
 
 
 @dataclass
@@ -139,6 +166,7 @@ class Acquisition:
             self.trials[int(i)].rows.append(rows[which == i])
 
     def write_pending(self) -> None:
+        self.check_space()
         for tr in self.trials:
             if tr.writer is None and (tr.rows or tr.commands):
                 tr.writer = self.writer.trial(tr.index)
@@ -157,6 +185,19 @@ class Acquisition:
             tr.commands.clear()
         self.writer.flush()
 
+    def check_space(self) -> None:
+        """DiskFull before a write that could meet a full disk: HDF5 after ENOSPC may leave a
+        half-written block (or an unreadable file), so the acquisition stops while
+        ``SPACE_MARGIN`` bytes are still free for closing the file and the loop's records."""
+        rows = sum(r.shape[0] for tr in self.trials for r in tr.rows)
+        cmds = sum(next(iter(c.values())).size for tr in self.trials for c in tr.commands
+                   if c)
+        need = rows * bytes_per_sample(self.cfg) + cmds * 8 * len(COMMAND_UNITS)
+        free = shutil.disk_usage(self.writer.path.parent).free
+        if free < need + SPACE_MARGIN:
+            raise DiskFull(f"disk full ({free // 1024} KB free in {self.writer.path.parent}, "
+                           f"kept everything written so far)")
+
     def finish(self, status: str, metadata: dict[str, Any], trial_attrs: dict[int, Any]) -> None:
         self.write_pending()
         for name, value in metadata.items():
@@ -166,30 +207,80 @@ class Acquisition:
         self.writer.close(status)
 
 
+class _ControllerDied(Exception):
+    def __init__(self, watch: ControllerWatch) -> None:
+        super().__init__(f"the controller process (pid {watch.pid}) died; the supervisor zeroed "
+                         f"the demand and disabled the drive")
+        self.watch = watch
+
+
+def _drain(acq: Acquisition, reader: Any, watch: ControllerWatch, quiet_s: float = 0.1,
+           limit_s: float = 2.0) -> None:
+    """Take the rows still in the card buffer after the loop's death (until none come for
+    ``quiet_s``); a fault while draining keeps what was taken."""
+    watch.safe.wait(timeout=limit_s)
+    end = time.monotonic() + limit_s
+    quiet = time.monotonic() + quiet_s
+    try:
+        acq.poll()
+        while time.monotonic() < min(end, quiet):
+            rows = reader.read(0.01)
+            if rows.shape[0]:
+                acq.take(rows)
+                quiet = time.monotonic() + quiet_s
+    except (DaqFault, OSError, ValueError, EOFError):
+        pass
+
+
 def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any],
-                    path: str, metadata: dict[str, Any], ctrl: Any, status: Any) -> None:
-    """Entry point of the acquisition process."""
+                    path: str, metadata: dict[str, Any], ctrl: Any, status: Any,
+                    controller_pid: int | None = None) -> None:
+    """Entry point of the acquisition process; it supervises ``controller_pid`` (default its
+    parent, the loop's process): see rig.supervisor."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # SIGTERM/SIGHUP to the whole group (a closed terminal) must not kill the file's writer:
+    # the run's process decides, and if it dies the supervisor closes the file
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    controller_pid = controller_pid or os.getppid()
     cfg = from_mapping(cfg_data)
     records = {k: CalRecord(**v) for k, v in cals.items()}
     writer = runfile.RunWriter(Path(path), "measured", metadata, crash_safe=True)
     acq = Acquisition(cfg, records, writer, ctrl, status)
     code = 0
     reader = None
+    watch: ControllerWatch | None = None
     try:
         reader = open_reader(spec)
+        watch = ControllerWatch(controller_pid, functools.partial(make_safe, reader, cfg))
+        watch.start()
         status.put(("ready",))
+        start_end = time.monotonic() + cfg.acquisition.start_timeout_s
         while True:
-            msg = ctrl.get(timeout=cfg.acquisition.start_timeout_s)
+            if watch.dead.is_set():
+                raise _ControllerDied(watch)
+            try:
+                msg = ctrl.get(timeout=0.05)
+            except queue.Empty:
+                if time.monotonic() > start_end:
+                    raise
+                continue
             if msg[0] == "go":
                 break
             acq._handle(msg)
+            if acq.stop is not None:  # the run ended before the clock started: close at once
+                _, _, final_status, meta, tattrs = acq.stop
+                acq.finish(final_status, meta, tattrs)
+                status.put(("done", 0))
+                return
         reader.start()
         status.put(("started",))
         period = cfg.acquisition.read_period_s
         last_flush = time.monotonic()
         drain_until = None
         while True:
+            if watch.dead.is_set():
+                raise _ControllerDied(watch)
             acq.poll()
             rows = reader.read(period)
             acq.take(rows)
@@ -211,6 +302,28 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                             f"samples" if final_status == "complete" else final_status)
         acq.finish(final_status, meta, tattrs)
         status.put(("done", acq.next_sample))
+    except _ControllerDied as exc:
+        code = 1
+        why = str(exc)
+        if reader is not None:  # every sample the card buffered up to the death
+            _drain(acq, reader, exc.watch)
+        if exc.watch.error:
+            why += f" (making the rig safe failed: {exc.watch.error})"
+        _abort(acq, writer, f"aborted: {why}")
+    except DiskFull as exc:  # nothing more written: close with what the file has
+        code = 1
+        writer.close(f"aborted: {exc}")
+        status.put(("error", str(exc)))
+    except OSError as exc:
+        code = 1
+        if exc.errno == errno.ENOSPC:
+            msg = f"disk full ({exc})"
+            with contextlib.suppress(Exception):
+                writer.close(f"aborted: {msg}")
+        else:
+            msg = f"acquisition failed: {type(exc).__name__}: {exc}"
+            _abort(acq, writer, f"aborted: {msg}")
+        status.put(("error", msg))
     except DaqFault as exc:
         code = 1
         _abort(acq, writer, f"aborted: {exc}")
@@ -221,10 +334,20 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
         _abort(acq, writer, f"aborted: {msg}")
         status.put(("error", msg + "\n" + traceback.format_exc(limit=3)))
     finally:
+        if watch is not None:
+            orphaned = watch.dead.is_set()
+            watch.stop()
         if reader is not None:
             reader.close()
+            if watch is not None and orphaned:
+                reader.release_orphaned()
     if code:
-        raise SystemExit(code)
+        # the file is closed and the reason sent: exit now, so the run's process sees the death
+        # at once (an interpreter's teardown with numba and h5py loaded takes seconds under load)
+        with contextlib.suppress(Exception):
+            status.close()
+            status.join_thread()
+        os._exit(code)
 
 
 def _abort(acq: Acquisition, writer: runfile.RunWriter, status: str) -> None:

@@ -266,8 +266,12 @@ def run_profile(
     learned: Annotated[bool, typer.Option(  # issue 18
         "--learned/--no-learned", help="use the learned-feedforward record of this profile "
         "if there is one")] = True,
+    force: Annotated[bool, typer.Option(
+        "--force", help="overwrite the --out file if it exists")] = False,
 ) -> None:
-    """Press the key with PROFILE on the rig and record everything into a run file."""
+    """Press the key with PROFILE on the rig and record everything into a run file.
+
+    Exit codes: 0 complete, 1 aborted (last line ``ABORTED: <reason>``), 2 refused input."""
     from rig import config as rig_config
     from rig.services import run as svc
 
@@ -304,7 +308,11 @@ def run_profile(
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
-                         on_line=_plain, learned=record[0] if record else None)
+                         on_line=_plain, force=force,
+                         learned=record[0] if record else None)
+    except svc.RunStopped as exc:
+        err.print(f"ABORTED: {exc}", markup=False, highlight=False, soft_wrap=True)
+        raise typer.Exit(code=1) from None
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
     lat = report.lateness
@@ -322,10 +330,10 @@ def run_profile(
     for name, r in report.repeatability.items():
         _plain(f"repeatability {name}: trial-to-trial RMS deviation {r['rms_deviation']:.3g} "
                       f"({r['relative'] * 100:.2f} % of its range)")
-    if not report.complete:
-        err.print(f"run {report.status}", markup=False, highlight=False, soft_wrap=True)
     _plain(f"wrote {report.path}")
     if not report.complete:
+        reason = report.status.removeprefix("aborted:").strip()
+        err.print(f"ABORTED: {reason}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1)
 # ---- end of rig run ----
 

@@ -83,6 +83,13 @@ class Reader(ABC):
     def publish_feedback(self, sample: int, ratio: float) -> None:  # noqa: B027 - optional
         """Make the latest load-cell sample visible to the loop (NI); no-op by default."""
 
+    def safe_stop(self) -> None:
+        """The loop's process died: put the drive demand at 0 V from here (rig.supervisor)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot zero the drive output")
+
+    def release_orphaned(self) -> None:  # noqa: B027 - optional
+        """After ``safe_stop``: remove the shared blocks the dead loop's process owned."""
+
 
 def open_daq(config: RigConfig, *, lockstep: bool = False,
              on_line: Callable[[str], None] | None = None) -> Daq:

@@ -19,6 +19,7 @@ full buffer stop the run.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from multiprocessing import shared_memory
 from typing import Any
@@ -28,7 +29,7 @@ import nidaqmx.errors
 import nidaqmx.stream_readers
 import nidaqmx.stream_writers
 import numpy as np
-from nidaqmx.constants import AcquisitionType, OverwriteMode
+from nidaqmx.constants import AcquisitionType, AOIdleOutputBehavior, OverwriteMode
 
 from rig import encoders, loadcell, strain
 from rig.config import RigConfig, from_mapping
@@ -125,7 +126,8 @@ class NiDaq(Daq):
             self.pace.close()
         del self._fb
         self.feedback.close()
-        self.feedback.unlink()
+        with contextlib.suppress(FileNotFoundError):  # the supervisor may have removed it
+            self.feedback.unlink()
 
 
 class NiReader(Reader):
@@ -204,6 +206,28 @@ class NiReader(Reader):
             fb[1] = ratio
             fb[0] = sample
             del fb
+
+    def safe_stop(self) -> None:
+        """The loop's process died: its drive task is gone but the card holds the last value,
+        so a new task on the same AO channel writes 0 V (and, on cards that have the setting,
+        asks for 0 V whenever no generation runs: ``ao_idle_output_behavior``)."""
+        out = self.cfg.channels.drive_output
+        task = _new_task("rig-safe-stop")
+        try:
+            chan = task.ao_channels.add_ao_voltage_chan(out.physical_channel,
+                                                        min_val=out.min_volts,
+                                                        max_val=out.max_volts)
+            with contextlib.suppress(nidaqmx.errors.DaqError):  # M-series (6229): no setting
+                chan.ao_idle_output_behavior = AOIdleOutputBehavior.ZERO_VOLTS
+            task.write(0.0, auto_start=True, timeout=1.0)
+            task.stop()
+        finally:
+            task.close()
+
+    def release_orphaned(self) -> None:
+        if self.fb is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.fb.unlink()
 
     def close(self) -> None:
         for task in [self.ai, *self.ci]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from unittest import mock
 
 import nidaqmx
@@ -187,5 +188,27 @@ def test_ni_hardware_pacing_ticks() -> None:
         d.arm()
         ticks = [d.wait_for_tick() for _ in range(50)]
         assert [t.index for t in ticks][-1] >= 49
+    finally:
+        d.close()
+
+
+def test_supervisor_zeroes_the_drive_output_with_a_new_task(ni) -> None:
+    """The loop's process died (its AO task with it; the card holds the last value): the
+    supervisor in the acquisition process writes 0 V on the same channel with a new task."""
+    from rig.supervisor import make_safe
+
+    cfg = ni_config(drive={"port": "sim"})  # the serial side is tested in test_supervisor
+    d = daq.open_daq(ni_config())
+    try:
+        r = daq.open_reader(d.reader_spec())
+        make_safe(r, cfg)
+        task = by_name("rig-safe-stop")
+        task.ao_channels.add_ao_voltage_chan.assert_called_once_with(
+            "Dev1/ao0", min_val=-10.0, max_val=10.0)
+        task.write.assert_called_once_with(0.0, auto_start=True, timeout=1.0)
+        task.close.assert_called_once_with()
+        r.close()
+        r.release_orphaned()  # the dead process's feedback block is removed
+        assert not Path(f"/dev/shm/{d.reader_spec()['feedback']}").exists()
     finally:
         d.close()

@@ -558,9 +558,12 @@ class ActionModel:
         return offset, self._polish(y, arrays)
 
     # -- simulation --------------------------------------------------------------------
-    def stepper(self, y0: np.ndarray | None = None, t0: float = 0.0) -> Stepper:
-        """A state that advances piece by piece (the simulated rig's 500 Hz loop)."""
-        return Stepper(self, self.rest_state() if y0 is None else np.asarray(y0, float), t0)
+    def stepper(self, y0: np.ndarray | None = None, t0: float = 0.0, *,
+                keep_history: bool = True) -> Stepper:
+        """A state that advances piece by piece (the simulated rig's 500 Hz loop, which passes
+        ``keep_history=False``: its memory stays flat however long it runs)."""
+        return Stepper(self, self.rest_state() if y0 is None else np.asarray(y0, float), t0,
+                       keep_history=keep_history)
 
     def simulate(self, profile: _profiles.Profile, duration: float | None = None, *,
                  y0: np.ndarray | None = None,
@@ -709,8 +712,10 @@ class ActionModel:
 class Stepper:
     """The model's state advanced piece by piece, with outputs on a fixed grid."""
 
-    def __init__(self, model: ActionModel, y0: np.ndarray, t0: float = 0.0) -> None:
+    def __init__(self, model: ActionModel, y0: np.ndarray, t0: float = 0.0, *,
+                 keep_history: bool = True) -> None:
         self.model = model
+        self.keep_history = keep_history  # False: only each chunk is returned, none kept
         self.y = np.array(y0, dtype=float)
         self.t = float(t0)
         self.h = 1e-5
@@ -723,7 +728,7 @@ class Stepper:
         self.status = 0
         self.message = "ok"
         self.stats = {"steps": 0.0, "rejected": 0.0, "rhs": 0.0}
-        if self.t == 0.0:  # the initial sample
+        if self.t == 0.0 and keep_history:  # the initial sample
             self._times.append(np.zeros(1))
             self._states.append(self.y[None, :].copy())
             self._forces.append(np.zeros(1))
@@ -752,9 +757,10 @@ class Stepper:
         n = adv.out.shape[0]
         times = out_t[:n]
         forces = np.interp(times, force_t, force_f)
-        self._times.append(times)
-        self._states.append(adv.out)
-        self._forces.append(forces)
+        if self.keep_history:
+            self._times.append(times)
+            self._states.append(adv.out)
+            self._forces.append(forces)
         self._next += n
         self.stats["steps"] += adv.n_steps
         self.stats["rejected"] += adv.n_rejected
@@ -771,6 +777,8 @@ class Stepper:
 
     def result(self) -> SimResult:
         """Every sample produced so far, with channels and events."""
+        if not self.keep_history:
+            raise RuntimeError("this stepper keeps no history (keep_history=False)")
         time = np.concatenate(self._times) if self._times else np.zeros(0)
         states = (np.concatenate(self._states) if self._states
                   else np.zeros((0, self.model.n_state)))

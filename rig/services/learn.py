@@ -93,7 +93,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
                  "q_cutoff_hz": filt.q_cutoff_hz, "source": filt.source}
     say(f"learning {profile.name} over up to {n} trials; learning filter: gain "
         f"{filt.gain:.3f} N/N, lead {filt.lead} cycles, Q {filt.q_cutoff_hz:g} Hz, {filt.source}")
-    out = Path(out) if out is not None else run_svc._default_path(cfg, profile)
+    out = Path(out) if out is not None else run_svc.default_path(cfg, profile)
     runs: list[Path] = []
     stopped: str | None = None
     say(table(["trial", "max error %", "RMS error %", "run file"]))

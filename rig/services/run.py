@@ -22,10 +22,14 @@ import gc
 import importlib
 import math
 import multiprocessing as mp
+import os
 import queue
+import shutil
 import signal
 import sys
+import threading
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,6 +113,34 @@ class _Abort(Exception):
     pass
 
 
+class _Stopped(BaseException):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP) that arrived before the loop was running."""
+
+
+STOP_SIGNALS: dict[int, str] = {
+    signal.SIGINT: "interrupted (Ctrl-C)", signal.SIGTERM: "terminated (SIGTERM)",
+    signal.SIGHUP: "hung up (SIGHUP: terminal closed)"}
+
+
+def _install_stop_handlers(state: dict[str, Any]) -> dict[int, Any]:
+    """SIGINT, SIGTERM and SIGHUP all stop the run the same way: in the loop they set the reason
+    (that same cycle writes 0 V); before it they raise ``_Stopped`` so start-up ends at once.
+    Only the main thread can install handlers; elsewhere (a test's thread) none are set."""
+    def handler(signum: int, _frame: Any) -> None:
+        why = STOP_SIGNALS.get(signum, f"signal {signum}")
+        if state.get("reason") is None:
+            state["reason"] = why
+        if not state.get("in_loop"):
+            raise _Stopped(why)
+
+    old: dict[int, Any] = {}
+    if threading.current_thread() is not threading.main_thread():
+        return old
+    for sig in STOP_SIGNALS:
+        old[sig] = signal.signal(sig, handler)
+    return old
+
+
 def lateness_stats(lateness: np.ndarray, missed: np.ndarray, threshold: float) -> dict[str, float]:
     """Median, 99th percentile and maximum lateness (s), missed ticks and late cycles."""
     if lateness.size == 0:
@@ -180,17 +212,93 @@ def tracking_error(path: Path, trial: int = 0, tail_s: float = 0.05) -> dict[str
             "samples": int(keep.sum())}
 
 
-def _default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
+FILE_OVERHEAD = 2 * 1024 * 1024  # bytes: metadata (config, profile, records) and HDF5 headers
+
+
+def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
+                     folder: Path) -> int:
+    """Refuse (one-line ValueError) a run whose file would not fit in ``folder``'s free space
+    (the whole run's samples at ``bytes_per_sample``, the file's overhead and the margin the
+    acquisition keeps free); the estimate in bytes."""
+    from rig.acquisition import SPACE_MARGIN, bytes_per_sample
+
+    seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
+    need = int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) + FILE_OVERHEAD \
+        + SPACE_MARGIN
+    probe = folder
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if free < need:
+        raise ValueError(f"data_folder: {folder} has {free / 1e6:.1f} MB free; this run "
+                         f"({trials} x {profile.name}, {seconds:.1f} s) needs about "
+                         f"{need / 1e6:.1f} MB")
+    return need
+
+
+MAX_NAME = 200  # characters of a run file's name (file systems allow 255 bytes)
+
+
+def _safe_name(name: str) -> str:
+    """A profile name as a file-name part: only letters, digits, ``-``, ``_`` and ``.``
+    (a name such as ``../../escaped`` becomes ``_.._escaped``: no separator survives, so the
+    file stays in the data folder), cut to keep the whole name under ``MAX_NAME``."""
+    clean = "".join(c if c.isalnum() or c in "-_." else "_" for c in name).strip(".") or "run"
+    return clean[:MAX_NAME - 40]
+
+
+def default_path(cfg: RigConfig, profile: profiles.Profile) -> Path:
+    """``<data_folder>/<time>-<profile>.h5`` (the profile's name made safe); not created."""
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return cfg.data_folder / f"{stamp}-{profile.name}.h5"
+    return Path(cfg.data_folder) / f"{stamp}-{_safe_name(profile.name)}.h5"
+
+
+def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = None,
+               *, force: bool = False) -> Path:
+    """The run file's path, created empty and exclusively (O_CREAT | O_EXCL) so two runs never
+    share a file: ``<data_folder>/<time>-<profile>.h5``, then ``...-2.h5``, ``-3`` ... when
+    taken. ``out`` is the user's file: refused (one-line ValueError) when it exists unless
+    ``force``, or when its name is too long."""
+    if out is not None:
+        path = Path(out)
+        if len(path.name) > MAX_NAME:
+            raise ValueError(f"--out: file name of {len(path.name)} characters is too long "
+                             f"(at most {MAX_NAME})")
+        if path.exists() and not force:
+            raise ValueError(f"--out: {path} exists; use --force to overwrite it")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not force:
+            _create_exclusive(path)
+        return path
+    first = default_path(cfg, profile)
+    folder = first.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    base = first.stem
+    for n in range(1, 1000):
+        path = folder / (f"{base}.h5" if n == 1 else f"{base}-{n}.h5")
+        try:
+            _create_exclusive(path)
+        except FileExistsError:
+            continue
+        return path
+    raise ValueError(f"data_folder: no free run-file name for {base} in {folder}")
+
+
+def _create_exclusive(path: Path) -> None:
+    fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    os.close(fd)
 
 
 def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
         on_cycle: Callable[[CycleContext], None] | None = None,
-        learned: dict[str, Any] | None = None) -> RunReport:
+        force: bool = False, learned: dict[str, Any] | None = None) -> RunReport:
     """Run the profile ``trials`` times on the configured rig; write one run file.
+
+    SIGINT, SIGTERM and SIGHUP stop it like Ctrl-C; any exception in the loop is an abort
+    (its traceback goes to ``on_line`` and the file's ``abort_traceback`` metadata). A stop
+    before the acquisition has started raises ``RunStopped`` (no run file is left).
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
     feedforward instead of the advance or the motor compensation (issue 18)."""
     say = on_line or (lambda s: None)
@@ -211,7 +319,37 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
 
         feedforward, compensation = learned_records.demand_source(learned)
     # ---- end issue 18 hook ----
-    path = Path(out) if out is not None else _default_path(cfg, profile)
+    stop_state: dict[str, Any] = {"reason": None, "in_loop": False}
+    old_handlers = _install_stop_handlers(stop_state)
+    try:
+        check_free_space(cfg, profile, trials, Path(out).parent if out is not None
+                         else Path(cfg.data_folder))
+        path = claim_path(cfg, profile, out, force=force)
+        try:
+            return _run(profile, cfg, trials, path, lockstep, ctl, say, on_cycle, full_records,
+                        cals, feedforward, compensation, stop_state, learned)
+        except BaseException as exc:
+            with contextlib.suppress(OSError):  # refused or stopped before the file was begun
+                if path.is_file() and path.stat().st_size == 0:
+                    path.unlink()
+            if isinstance(exc, _Stopped):
+                raise RunStopped(f"{exc} before the run started; no run file written") from None
+            raise
+    finally:
+        for sig, old in old_handlers.items():
+            signal.signal(sig, old)
+
+
+class RunStopped(RuntimeError):
+    """A stop signal arrived while the run was starting (nothing moved, no file kept)."""
+
+
+def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, lockstep: bool,
+         ctl: Controller, say: Callable[[str], None],
+         on_cycle: Callable[[CycleContext], None] | None, full_records: list[dict[str, Any]],
+         cals: Any, feedforward: Callable[[profiles.Profile, float], float],
+         compensation: dict[str, Any], stop_state: dict[str, Any],
+         learned: dict[str, Any] | None = None) -> RunReport:
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
     spc = cfg.rates.samples_per_cycle
@@ -247,12 +385,10 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     proc: Any = None
     drive: Drive | None = None
     monitor: DriveMonitor | None = None
-    rows: list[list[float]] = []
-    sent = [0] * trials
+    rows = _Records(trials, total, keep=int(KEEP_RECORDS_S * hz))
     reason: str | None = None
     last_tick = -1
-    interrupted = {"flag": False}
-    old_handler: Any = None
+    abort_tb: str | None = None
     old_switch = sys.getswitchinterval()
     realtime = False
     pinned: set[int] | None = None  # the CPUs the loop's thread could use before pinning
@@ -285,7 +421,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         say(f"running {profile.name} ({profile.duration:.3f} s, peak {profile.peak:g} N) x "
             f"{trials} on {cfg.backend} rig{' in lock-step' if daq_lockstep(daq) else ''}")
 
-        old_handler = signal.signal(signal.SIGINT, lambda *_: interrupted.update(flag=True))
+        stop_state["in_loop"] = True  # from here a stop signal sets the reason, never raises
         limiter = motor_torque.Limiter(cfg.limits, dt)
         scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
                                                          cfg.channels.drive_output)
@@ -320,8 +456,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             t = (local - settle) * dt
             late = tick.lateness_s > cfg.limits.late_threshold_s or tick.missed > 0
             streak = streak + 1 if late else 0
-            if interrupted["flag"]:
-                reason = "interrupted (Ctrl-C)"
+            if stop_state["reason"] is not None:
+                reason = stop_state["reason"]
             elif monitor.fault:
                 reason = monitor.fault
             elif not proc.is_alive():
@@ -332,8 +468,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
                           f"{tick.lateness_s * 1e3:.2f} ms)")
             if reason is not None:
                 daq.write_volts(0.0)
-                rows.append([t, i, 0.0, 0.0, 0.0, 0.0, 0.0, math.nan, tick.lateness_s,
-                             tick.missed, k])
+                rows.add([t, i, 0.0, 0.0, 0.0, 0.0, 0.0, math.nan, tick.lateness_s,
+                          tick.missed, k])
                 last_tick = i
                 break
             if k != trial_now:
@@ -350,19 +486,34 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             volts = scaling.volts(demand)
             daq.write_volts(volts)
             last_tick = i
-            rows.append([t, i, target, ff, demand, volts, float(limited), measured,
+            rows.add([t, i, target, ff, demand, volts, float(limited), measured,
                          tick.lateness_s, tick.missed, k])
             if on_cycle is not None:
                 on_cycle(CycleContext(i, k, t, proc.pid, sim_drive, daq))
-            if len(rows) - sum(sent) >= 50:
-                _send_commands(ctrl, rows, sent)
+            if rows.unsent() >= 50:
+                rows.send(ctrl)
     except _Abort as exc:
         reason = str(exc)
-    except KeyboardInterrupt:
-        reason = "interrupted (Ctrl-C)"
-    except (DriveError, RuntimeError, OSError) as exc:
+    except (KeyboardInterrupt, _Stopped):
+        reason = stop_state["reason"] or "interrupted (Ctrl-C)"
+        if stop_state["in_loop"] is False and proc is None:
+            stop_state["in_loop"] = True
+            _safe(lambda: daq.write_volts(0.0))
+            _safe(daq.close)
+            if sim_drive is not None:
+                _safe(sim_drive.close)
+            if drive is not None:
+                _safe(drive.close)
+            raise _Stopped(reason) from None
+    except (DriveError, OSError) as exc:
         reason = f"{type(exc).__name__}: {exc}"
+    except Exception as exc:  # anything else (a user controller's bug): abort, keep the trace
+        reason = f"{type(exc).__name__}: {exc}"
+        abort_tb = traceback.format_exc()
+        for ln in abort_tb.rstrip().splitlines():
+            say(ln)
     finally:
+        stop_state["in_loop"] = True
         _safe(lambda: daq.write_volts(0.0))
         if realtime:
             pacing.normal_priority()
@@ -377,17 +528,17 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             _safe(drive.disable)
         if monitor is not None:
             monitor.stop()
-        if old_handler is not None:
-            signal.signal(signal.SIGINT, old_handler)
 
     status = "complete" if reason is None else f"aborted: {reason}"
-    arr = np.array(rows, dtype=float).reshape(-1, 11)
-    stats = lateness_stats(arr[:, 8], arr[:, 9], cfg.limits.late_threshold_s)
+    stats = lateness_stats(rows.lateness[:rows.n], rows.missed[:rows.n],
+                           cfg.limits.late_threshold_s)
     stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
     stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
     try:
-        samples = _finish(proc, ctrl, status_q, rows, sent, trials, status, stats,
-                          (last_tick + 1) * spc, path, cfg)
+        # only the trial that was cut is aborted: those before it ran to their end
+        done_trials = trials if reason is None else max(0, last_tick) // per_trial
+        samples = _finish(proc, ctrl, status_q, rows, trials, status, stats,
+                          (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
         daq.close()
         if drive is not None:
@@ -395,7 +546,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         if sim_drive is not None:
             sim_drive.close()
     final = runfile.read(path).status
-    rep = repeatability(path) if trials > 1 else {}
+    # no repeatability figure over truncated trials: only a complete run gets one
+    rep = repeatability(path) if trials > 1 and final == "complete" else {}
     if rep:
         w = runfile.RunWriter.reopen(path)
         w.add_metadata("repeatability", rep)
@@ -462,32 +614,85 @@ _COLS = ("time", "tick", "target", "feedforward", "demand", "volts", "limited",
          "measured_force", "lateness", "missed")
 
 
-def _send_commands(ctrl: Any, rows: list[list[float]], sent: list[int]) -> None:
-    """Send the rows not yet sent, per trial (``sent[k]`` counts rows of trial k sent)."""
-    done = sum(sent)
-    arr = np.array(rows[done:], dtype=float).reshape(-1, 11)
-    for k in np.unique(arr[:, 10]).astype(int):
+ACQUISITION_EXIT_S = 1.0  # s: the acquisition's exit after it closed the file and said so
+KEEP_RECORDS_S = 10.0  # s of the loop's records kept after sending (the recovery's margin)
+
+
+class _Records:
+    """The loop's records (one row per cycle: the ``_COLS`` and the trial), sent to the
+    acquisition process in batches. Memory stays flat over long runs: only the last ``keep``
+    rows are kept once sent (enough to refill what a dead acquisition had not flushed), and
+    lateness and missed ticks go into arrays sized for the run up front."""
+
+    def __init__(self, trials: int, total: int, keep: int) -> None:
+        self.rows: list[list[float]] = []
+        self.base = 0                 # rows dropped from the front (all sent)
+        self.sent = [0] * trials      # rows of trial k sent
+        self.made = [0] * trials      # rows of trial k recorded
+        self.keep = max(keep, 1)
+        self.lateness = np.zeros(total + 1)
+        self.missed = np.zeros(total + 1)
+        self.n = 0
+
+    def add(self, row: list[float]) -> None:
+        self.rows.append(row)
+        self.made[int(row[10])] += 1
+        self.lateness[self.n] = row[8]
+        self.missed[self.n] = row[9]
+        self.n += 1
+
+    def unsent(self) -> int:
+        return self.base + len(self.rows) - sum(self.sent)
+
+    def send(self, ctrl: Any) -> None:
+        """Send the rows not yet sent, per trial; then drop all but the last ``keep``."""
+        done = sum(self.sent) - self.base
+        arr = np.array(self.rows[done:], dtype=float).reshape(-1, 11)
+        for k in np.unique(arr[:, 10]).astype(int):
+            part = arr[arr[:, 10] == k]
+            ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
+            self.sent[k] += part.shape[0]
+        excess = len(self.rows) - self.keep
+        if excess > 0:
+            del self.rows[:excess]
+            self.base += excess
+
+    def trial_rows(self, k: int) -> tuple[int, np.ndarray]:
+        """(index within trial k of its first kept row, the kept rows of trial k)."""
+        arr = np.array(self.rows, dtype=float).reshape(-1, 11)
         part = arr[arr[:, 10] == k]
-        ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
-        sent[k] += part.shape[0]
+        return self.made[k] - part.shape[0], part
 
 
-def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: list[int],
-            trials: int, status: str, stats: dict[str, float], end_sample: int, path: Path,
-            cfg: RigConfig) -> int | None:
+def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, status: str,
+            stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
+            abort_tb: str | None = None, done_trials: int = 0) -> int | None:
     """Stop the acquisition process and see the file closed; recover it if the process died."""
-    meta = {"loop_lateness": stats}
-    tattrs: dict[int, dict[str, Any]] = {}
+    meta: dict[str, Any] = {"loop_lateness": stats}
+    if abort_tb is not None:
+        meta["abort_traceback"] = abort_tb
+    tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
     if proc is None:
         return None
-    if proc.is_alive():
-        _send_commands(ctrl, rows, sent)
-        ctrl.put(("stop", end_sample, status, meta, tattrs))
-        proc.join(timeout=30.0)
     msgs = []
+    if proc.is_alive():
+        rows.send(ctrl)
+        ctrl.put(("stop", end_sample, status, meta, tattrs))
+        # wait for its answer (the file is closed by then), not for its interpreter's exit
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end:
+            try:
+                msgs.append(status_q.get(timeout=0.02))
+            except queue.Empty:
+                if not proc.is_alive():
+                    break
+                continue
+            if msgs[-1][0] in ("done", "error"):
+                break
+        proc.join(timeout=ACQUISITION_EXIT_S)
     while True:
         try:
-            msgs.append(status_q.get(timeout=0.2))
+            msgs.append(status_q.get(timeout=0.05))
         except queue.Empty:
             break
     done = [m for m in msgs if m[0] == "done"]
@@ -495,10 +700,14 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
     if proc.is_alive():
         proc.kill()
         proc.join(timeout=5.0)
-        errors.append("the acquisition process did not stop; killed")
+        if not done:
+            errors.append("the acquisition process did not stop; killed")
+    # the acquisition is gone: what is still in the command queue's pipe has no reader, and
+    # joining its feeder thread at exit would hang the run's process for good
+    ctrl.cancel_join_thread()
     ctrl.close()
     status_q.close()
-    if done and proc.exitcode == 0:
+    if done and proc.exitcode in (0, -signal.SIGKILL):  # (killed while exiting, file closed)
         return int(done[0][1])
     # the acquisition process died or failed: finish the file here
     why = errors[0] if errors else f"the acquisition process died (exit code {proc.exitcode})"
@@ -508,9 +717,8 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
     if not path.is_file():
         return None
     w = runfile.RunWriter.reopen(path)
-    arr = np.array(rows, dtype=float).reshape(-1, 11)
     for k in range(trials):
-        part = arr[arr[:, 10] == k]
+        first, part = rows.trial_rows(k)
         if not part.shape[0]:
             continue
         grp = f"trial_{k:03d}"
@@ -518,10 +726,14 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: list[list[float]], sent: 
         if grp in w.file and "commands" in w.file[grp] and "time" in w.file[grp]["commands"]:
             have = int(w.file[grp]["commands"]["time"].shape[0])
         tw = w.trial(k)
-        if have < part.shape[0]:
-            tw.append("commands", {c: part[have:, j] for j, c in enumerate(_COLS)},
-                      COMMAND_UNITS)
-    w.add_metadata("loop_lateness", stats)
+        if have < first + part.shape[0]:  # (a gap if the file lacks rows no longer kept)
+            tw.append("commands", {c: part[max(0, have - first):, j]
+                                   for j, c in enumerate(_COLS)}, COMMAND_UNITS)
+    for name, value in meta.items():
+        w.add_metadata(name, value)
+    for k, attrs in tattrs.items():
+        if f"trial_{k:03d}" in w.file:
+            w.trial(k).set_attrs(**attrs)
     if errors and final != f"aborted: {errors[0]}":
         w.add_metadata("acquisition_error", errors[0])
     w.close(final)

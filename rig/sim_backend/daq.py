@@ -16,8 +16,10 @@ exactly and deterministically, one control period per tick.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import multiprocessing as mp
+import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -107,6 +109,7 @@ class SimDaq(Daq):
     def reader_spec(self) -> dict[str, Any]:
         return {"backend": "sim", "fifo": self.fifo.spec,
                 "plant": self.link.spec if self.link is not None else None,
+                "plant_pid": self.plant.pid if self.plant is not None else None,
                 "read_period_s": self.config.acquisition.read_period_s}
 
     def arm(self) -> None:
@@ -180,6 +183,8 @@ class SimDaq(Daq):
             if self.index >= 0 and self.link.cycles_done <= self.index:
                 self.link.put(self.index, 0.0)
             self.link.request_stop()
+            if self.plant is not None and not self.link.ready:
+                self.plant.kill()  # still building its model (stopped at start): nothing to finish
             if self.plant is not None:
                 self.plant.join(timeout=30.0)
                 if self.plant.is_alive():
@@ -194,6 +199,7 @@ class SimReader(Reader):
     """Acquisition side of the simulated rig: drains the shared card buffer."""
 
     def __init__(self, spec: dict[str, Any]) -> None:
+        self.spec = spec
         self.fifo = SharedFifo.attach(spec["fifo"])
         self.link = PlantLink.attach(spec["plant"]) if spec.get("plant") else None
         self.period = float(spec.get("read_period_s", 0.02))
@@ -215,7 +221,48 @@ class SimReader(Reader):
                 return rows
             time.sleep(min(0.001, self.period))
 
+    def safe_stop(self) -> None:
+        """The loop's process died: disable the simulated drive (the plant stops pushing at
+        once: its motor force follows a zero demand) and tell the plant to stop after the
+        periods it already has. Lock-step: the physics ran in the dead process, nothing moves."""
+        if self.link is None:
+            return
+        link = self.link
+        SharedDriveState(link).enabled = False
+        nxt = int(link.tags.max()) + 1  # the next control period gets 0 V, as the card would
+        if nxt - link.cycles_done < link.slots:
+            link.put(nxt, 0.0)
+        link.request_stop()
+
+    def release_orphaned(self) -> None:
+        """Unlink the card buffer and the plant's block once the plant has stopped (the dead
+        loop's process created them; multiprocessing's resource tracker would otherwise warn
+        about and remove them only when every process using it has gone)."""
+        pid = self.spec.get("plant_pid")
+        end = time.monotonic() + 2.0
+        while pid and _alive(int(pid)) and time.monotonic() < end:
+            time.sleep(0.005)
+        for shm in (self.fifo.shm, self.link.shm if self.link is not None else None):
+            if shm is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    shm.unlink()
+
     def close(self) -> None:
         self.fifo.close()
         if self.link is not None:
             self.link.close()
+
+
+def _alive(pid: int) -> bool:
+    """Process ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return False
+    except OSError:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True

@@ -16,7 +16,7 @@ import threading
 import tty
 
 from rig.config import DriveLink
-from rig.sim_backend.plant import SharedDriveState
+from rig.sim_backend.plant import DRIVE_LOG_ENV, DriveLog, SharedDriveState
 from rig.sim_backend.rig import DriveState
 
 
@@ -30,6 +30,8 @@ class SimDrive:
         tty.setraw(self.slave)
         self.port = os.ttyname(self.slave)
         self.log: list[str] = []
+        # the drive's own log (shared file with the plant's demand log, $RIG_SIM_DRIVE_LOG)
+        self.file_log = DriveLog(os.environ.get(DRIVE_LOG_ENV))
         self.settings: dict[str, str] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="sim-drive", daemon=True)
@@ -82,6 +84,7 @@ class SimDrive:
                 line, buf = buf.split(b"\r", 1)
                 cmd = line.decode("ascii", "replace").strip()
                 self.log.append(cmd)
+                self.file_log.command(cmd)
                 answer = self._answer(cmd)
                 out = (answer + "\r\n" if answer else "\r\n") + self.cfg.prompt
                 os.write(self.master, out.encode("ascii"))
@@ -89,6 +92,7 @@ class SimDrive:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=1.0)
+        self.file_log.close()
         for fd in (self.master, self.slave):
             with contextlib.suppress(OSError):
                 os.close(fd)

@@ -26,7 +26,10 @@ an error, which the loop and the acquisition report as a card fault.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
+import os
 import signal
 import threading
 import time
@@ -179,8 +182,12 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
     from rig.sim_backend.rig import SimRig
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run's process decides on Ctrl-C
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)  # ... and on a closed terminal
+    parent = os.getppid()
     link = PlantLink.attach(link_spec)
     fifo = SharedFifo.attach(fifo_spec)
+    log = DriveLog(os.environ.get(DRIVE_LOG_ENV))
+    idle = 0
     try:
         cfg = from_mapping(cfg_data)
         state = SharedDriveState(link)
@@ -191,12 +198,22 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
         link.set_ready()
         cycle = 0
         while True:
+            log.state(cycle, state)
             volts = link.get(cycle)
             if volts is None:
                 if link.stop_requested:
+                    log.event(cycle, "stop requested")
+                    break
+                idle += 1
+                if idle % 2500 == 0 and os.getppid() != parent:  # ~0.5 s: orphaned and nobody
+                    state.enabled = False                          # asked us to stop
+                    log.state(cycle, state)
+                    log.event(cycle, "the run's process is gone: drive disabled, plant stopped")
                     break
                 time.sleep(POLL_S)
                 continue
+            idle = 0
+            log.demand(cycle, volts, state)
             rows = rig.cycle(volts)
             fifo.write(rows)  # the card never waits: a slow reader overflows, loudly
             cycle += 1
@@ -205,5 +222,62 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
         link.fail(f"the simulated rig failed: {type(exc).__name__}: {exc}\n"
                   + traceback.format_exc(limit=4))
     finally:
+        with contextlib.suppress(Exception):
+            log.state(-1, SharedDriveState(link))
+            log.event(-1, "plant exits")
+        log.close()
         fifo.close()
         link.close()
+
+
+DRIVE_LOG_ENV = "RIG_SIM_DRIVE_LOG"
+
+
+class DriveLog:
+    """The simulated drive's own log, kept by the plant process (it outlives the run's
+    process) and by the simulated serial drive: one JSON line per command received
+    (``command``), per change of the demand (volts applied to a control period) or of
+    the drive's state (enabled, fault), with the wall-clock time ``t`` (s, time.time()) and
+    the control period ``tick``. Written only when ``$RIG_SIM_DRIVE_LOG`` names a file (the
+    fault tests read it); line-buffered, so a killed plant leaves every line so far."""
+
+    def __init__(self, path: str | None) -> None:
+        self.f = open(path, "a", buffering=1, encoding="utf-8") if path else None  # noqa: SIM115
+        self.last_volts: float | None = None
+        self.last_state: tuple[bool, int] | None = None
+
+    def _write(self, entry: dict[str, Any]) -> None:
+        if self.f is not None:
+            self.f.write(json.dumps({"t": time.time(), **entry}) + "\n")
+
+    def demand(self, tick: int, volts: float, state: Any) -> None:
+        if self.f is not None and volts != self.last_volts:
+            self.last_volts = volts
+            self._write({"tick": tick, "volts": volts, "enabled": state.enabled,
+                         "fault": state.fault})
+
+    def state(self, tick: int, state: Any) -> None:
+        if self.f is None:
+            return
+        now = (bool(state.enabled), int(state.fault))
+        if now != self.last_state:
+            self.last_state = now
+            self._write({"tick": tick, "enabled": now[0], "fault": now[1]})
+
+    def command(self, text: str) -> None:
+        """A command received over the serial link (the simulated drive's side)."""
+        self._write({"command": text})
+
+    def event(self, tick: int, what: str) -> None:
+        self._write({"tick": tick, "event": what})
+
+    def close(self) -> None:
+        if self.f is not None:
+            self.f.close()
+            self.f = None
+
+
+def read_drive_log(path: str) -> list[dict[str, Any]]:
+    """The entries of a simulated drive log (see ``DriveLog``)."""
+    with open(path, encoding="utf-8") as f:
+        return [json.loads(ln) for ln in f if ln.strip()]

@@ -67,7 +67,7 @@ class SimRig:
         for j in range(1, 4):
             c = warm.advance(j * 2e-3, 0.0, 0.0)
             self.model.channels(c.time, c.states, c.force)
-        self.stepper = self.model.stepper()
+        self.stepper = self.model.stepper(keep_history=False)  # flat memory over long runs
         self._rest = {n: float(rest[i]) for n, i in ANGLE_CHANNELS.items()}
         self.sample = 0
         self._pending = self._physical(np.zeros(1), rest[None, :], np.zeros(1))

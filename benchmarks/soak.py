@@ -1,0 +1,176 @@
+"""Soak: a long `rig run` on the real-time simulated rig; memory, lost samples, lateness.
+
+    python benchmarks/soak.py                      # 10 minutes of forte blows
+    python benchmarks/soak.py --minutes 3 --out /tmp/soak
+
+Runs `python -m rig run PROFILE --trials N` (N trials fill the requested time) in a
+subprocess and prints: the resident memory (RSS) of each of its processes (the run's
+process, the acquisition process, the simulated plant) shortly after the loop started and
+just before it ended, with the change in %; the samples acquired against the sample
+counter (lost samples = counter span - samples in the file, gaps between trials counted);
+the loop's lateness per minute of the run (median, p99, max, late cycles). Goals: 0 lost
+samples, RSS flat within 10 %, lateness not growing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rss_mb(pid: int) -> float | None:
+    try:
+        for ln in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if ln.startswith("VmRSS:"):
+                return int(ln.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def _tree(pid: int) -> dict[str, int]:
+    """The run's processes by role: main, acquisition, plant (spawned children)."""
+    out = {"main": pid}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            cmd = (d / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) != pid or b"spawn_main" not in cmd:
+            continue
+        fds = []
+        with contextlib.suppress(OSError):
+            fds = [os.readlink(f) for f in (str(p) for p in (d / "fd").iterdir())]
+        out["acquisition" if any(f.endswith(".h5") for f in fds) else "plant"] = int(d.name)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0, help="length of the run (default 10)")
+    ap.add_argument("--profile", type=Path, default=ROOT / "profiles" / "forte.yaml")
+    ap.add_argument("--out", type=Path, default=None, help="folder for the rig config and file")
+    ap.add_argument("--light", action="store_true",
+                    help="simulate the action without effects and strain gauge (a plant that "
+                         "keeps up on a loaded machine)")
+    ap.add_argument("--buffer-s", type=float, default=None,
+                    help="acquisition.buffer_s (the simulated card buffer; a larger one rides "
+                         "out a plant starved for seconds by other load)")
+    ap.add_argument("--drive-timeout-s", type=float, default=None,
+                    help="drive.timeout_s (the simulated drive's thread answers late when the "
+                         "machine is overloaded)")
+    ap.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling period (s)")
+    args = ap.parse_args()
+    out = args.out or Path(tempfile.mkdtemp(prefix="rig-soak-"))
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = {"name": "soak", "backend": "sim", "drive": {"port": "sim"},
+           "sim": {"realtime": True}, "data_folder": str(out)}
+    if args.drive_timeout_s is not None:
+        cfg["drive"]["timeout_s"] = args.drive_timeout_s  # type: ignore[index]
+    if args.buffer_s is not None:
+        cfg["acquisition"] = {"buffer_s": args.buffer_s}
+    if args.light:
+        cfg["sim"]["effects"] = []  # type: ignore[index]
+        cfg["channels"] = {"strain_gauge": {"enabled": False}}
+    rig_file = out / "soak-rig.yaml"
+    rig_file.write_text(yaml.safe_dump(cfg))
+
+    from rig import config, profiles
+
+    rc = config.from_mapping(cfg)
+    prof = profiles.load(args.profile, force_limit=rc.limits.max_force_n)
+    per_trial = rc.loop.settle_s + prof.duration + rc.loop.rest_s
+    trials = max(1, math.ceil(args.minutes * 60 / per_trial))
+    run_file = out / "soak.h5"
+    if run_file.exists():
+        run_file.unlink()
+    print(f"soak: {trials} trials of {prof.name} ({per_trial:.2f} s each, "
+          f"{trials * per_trial / 60:.1f} min), files in {out}", flush=True)
+    cmd = [sys.executable, "-m", "rig", "run", str(args.profile), "--rig", str(rig_file),
+           "--trials", str(trials), "-o", str(run_file)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert proc.stdout is not None
+    lines: list[str] = []
+    for ln in proc.stdout:  # until the loop starts
+        lines.append(ln.rstrip())
+        if ln.startswith("running "):
+            break
+    time.sleep(min(10.0, args.sample_s))
+    roles = _tree(proc.pid)
+    first = {r: _rss_mb(p) for r, p in roles.items()}
+    last = dict(first)
+    t0 = time.monotonic()
+    import threading
+
+    rest: list[str] = []
+    reader = threading.Thread(target=lambda: rest.extend(ln.rstrip() for ln in proc.stdout),
+                              daemon=True)  # type: ignore[union-attr]
+    reader.start()
+    while proc.poll() is None:
+        time.sleep(args.sample_s)
+        now = {r: _rss_mb(p) for r, p in roles.items()}
+        if all(v is not None for v in now.values()):
+            last = now
+    reader.join(timeout=5)
+    lines += rest
+    print(f"rig run exit code {proc.returncode} after {time.monotonic() - t0:.0f} s of "
+          f"sampling; its last line: {lines[-1] if lines else ''}")
+    print("RSS (MB) after the loop started -> before it ended:")
+    for r, p in roles.items():
+        a, b = first.get(r), last.get(r)
+        if a and b:
+            print(f"  {r:12s} (pid {p}): {a:7.1f} -> {b:7.1f}  ({(b - a) / a * 100:+.1f} %)")
+
+    with h5py.File(run_file, "r") as f:
+        status = str(f.attrs["status"])
+        samples, counters, ticks, late, missed = 0, [], [], [], []
+        for name in sorted(k for k in f if k.startswith("trial_")):
+            g = f[name]
+            if "channels" not in g or "commands" not in g:
+                continue
+            s = g["channels/sample"][:]
+            samples += s.size
+            counters.append(s)
+            ticks.append(g["commands/tick"][:])
+            late.append(g["commands/lateness"][:])
+            missed.append(g["commands/missed"][:])
+        hz = rc.rates.control_hz
+    s = np.concatenate(counters) if counters else np.zeros(0)
+    span = int(s.max() - s.min() + 1) if s.size else 0
+    gaps = int(np.sum(np.diff(s) != 1)) if s.size else 0
+    print(f"file status {status}; samples {samples}, counter span {span}, lost "
+          f"{span - samples}, counter jumps {gaps}")
+    if not ticks:
+        return 1
+    tick = np.concatenate(ticks)
+    lat = np.concatenate(late) * 1e3
+    miss = np.concatenate(missed)
+    minute = (tick / hz // 60).astype(int)
+    print("loop lateness per minute (ms): minute  median    p99     max  late(>"
+          f"{rc.limits.late_threshold_s * 1e3:g} ms)  missed")
+    for m in np.unique(minute):
+        sel = minute == m
+        x = lat[sel]
+        print(f"  {m:3d}  {np.median(x):7.3f}  {np.percentile(x, 99):7.3f}  {x.max():7.3f}  "
+              f"{int(np.sum(x > rc.limits.late_threshold_s * 1e3)):6d}  {int(miss[sel].sum()):6d}")
+    return 0 if status == "complete" and span == samples else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
