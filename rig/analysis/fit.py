@@ -31,6 +31,7 @@ from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 from rig.model.effects import Effect
+from rig.model.integrators import Integrator
 
 FAILED_PENALTY = 1.0
 ALIGN_S = 0.0  # residual (in channel ranges) of samples a failed simulation lacks
@@ -122,7 +123,11 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
 def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
             values: dict[str, float] | None = None, targets: Sequence[Target] = (),
             rate: float | None = None) -> ActionModel:
-    """A fresh model: base's parameters and effects, extra effects, target values set."""
+    """A fresh model: base's parameters and effects, extra effects, target values set.
+
+    The base's integrator is kept unless an effect adds Python forces or states and the
+    integrator is compiled: then the model integrates with scipy-LSODA (the default for
+    such models; see ``python_integrator_note``)."""
     params = base.params.copy()
     effects: list[Effect] = []
     for e in base.effects:
@@ -141,9 +146,24 @@ def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
             if t.effect not in by_name:
                 raise ValueError(f"param: {t.label}: effect {t.effect} is not in the model")
             by_name[t.effect].set(t.key, v)
-    model = ActionModel(params, effects, base.integrator, output_rate=rate or base.output_rate)
+    integrator: Integrator | None = base.integrator
+    if any(e.runs_in_python() for e in effects) and not integrator.name.startswith("scipy-"):
+        integrator = None  # a compiled integrator cannot call Python forces: scipy-LSODA
+    model = ActionModel(params, effects, integrator, output_rate=rate or base.output_rate)
     model.rest_state()  # shared by every model with the same equations
     return model
+
+
+def python_integrator_note(base: ActionModel, classes: Sequence[type[Effect]]) -> str:
+    """One sentence when some of ``classes`` make ``rebuild`` leave the base's compiled
+    integrator for scipy-LSODA (empty otherwise)."""
+    if base.integrator.name.startswith("scipy-"):
+        return ""
+    names = [c.name for c in classes if c().runs_in_python()]
+    if not names:
+        return ""
+    return (f"{', '.join(names)} computes forces in Python: its models integrate with "
+            f"scipy-LSODA instead of {base.integrator.name} (slower)")
 
 
 @dataclass
