@@ -5,7 +5,11 @@ improvement (``improvement_test``) use heteroskedasticity-and-autocorrelation-co
 Newey-West) estimates: sums of lagged products within each contiguous segment
 (one trial's channel), with Bartlett weights ``1 - l / (L + 1)`` up to a
 bandwidth ``L`` read from the data's own autocorrelation (the last lag, up to a
-quarter of the shortest segment, at which it still exceeds ``ACF_FLOOR``).
+quarter of the shortest segment, at which it still exceeds ``ACF_FLOOR``). With
+so long a bandwidth the variance estimate is itself uncertain and biased low;
+intervals and the test use fixed-b critical values (``fixed_b_factor``) so that a
+stated 95 % interval covers and a 5 % test false-alarms at about those rates
+(tests/test_stats.py checks both on coloured noise).
 """
 
 from __future__ import annotations
@@ -40,6 +44,16 @@ def bandwidth(x: np.ndarray, segments: Sequence[int]) -> int:
         if abs(acf) > ACF_FLOOR:
             last = lag
     return min(lmax, max(MIN_LAG, last))
+
+
+def fixed_b_factor(lag: int, segments: Sequence[int]) -> float:
+    """How much wider than the normal 1.96 a 95 % interval from a Bartlett HAC estimate
+    must be when the bandwidth is a sizeable share ``b = (lag + 1) / T`` of each segment
+    (fixed-b asymptotics, Kiefer & Vogelsang 2005, their cubic fit of the Bartlett critical
+    values): the variance estimate itself is then uncertain and biased low."""
+    t = float(np.mean([s for s in segments if s > 0])) if segments else 1.0
+    b = min(1.0, (lag + 1) / max(t, 1.0))
+    return (1.96 + 2.9694 * b + 0.4160 * b ** 2 - 0.5324 * b ** 3) / 1.96
 
 
 def long_run_cov(s: np.ndarray, segments: Sequence[int], lag: int) -> np.ndarray:
@@ -84,7 +98,7 @@ def mean_test(d: np.ndarray, segments: Sequence[int], noise: np.ndarray | None =
     var = float(s[0, 0]) / d.size ** 2
     if not var > 0:
         return 0.0, 1.0
-    z = float(d.mean()) / math.sqrt(var)
+    z = float(d.mean()) / math.sqrt(var) / fixed_b_factor(lag, [len(p) for p in parts])
     return z, 0.5 * math.erfc(z / math.sqrt(2))
 
 
@@ -95,7 +109,8 @@ def sandwich_cov(J: np.ndarray, r: np.ndarray, segments: Sequence[int]) -> np.nd
     bread = np.linalg.pinv(J.T @ J)
     lag = bandwidth(r, segments)
     meat = long_run_cov(J * r[:, None], segments, lag)
-    return np.asarray(bread @ meat @ bread * n / max(n - p, 1), float)
+    scale = n / max(n - p, 1) * fixed_b_factor(lag, segments) ** 2
+    return np.asarray(bread @ meat @ bread * scale, float)
 
 
 def round_to(v: float, s: float) -> float:
