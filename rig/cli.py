@@ -490,9 +490,11 @@ def fit_cmd(
                           progress=_analysis_progress(bar, task))
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
+    from rig.analysis.stats import fmt
+
     for t in res.targets:
-        console.print(f"{t.label} = {res.values[t.label]:.6g} +- {res.sigma[t.label]:.2g} "
-                      f"{t.units} (start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
+        console.print(f"{t.label} = {fmt(res.values[t.label], res.sigma[t.label], t.units)} "
+                      f"(start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
                       markup=False, highlight=False)
     console.print(f"normalized mean square residual {res.cost_start:.4g} -> {res.cost:.4g} "
                   f"({res.nfev} evaluations; {res.message})", markup=False, highlight=False)
