@@ -10,6 +10,8 @@ import math
 import numpy as np
 from scipy.signal import lfilter
 
+from rig.analysis import diagnose as dg
+from rig.analysis import fit as ft
 from rig.analysis import stats
 
 N, SEG = 600, [300, 300]  # two trials' channels of 0.15 s at 2 kHz
@@ -73,3 +75,44 @@ def test_values_print_and_round_to_their_uncertainty() -> None:
     assert stats.fmt(math.nan, 1.0) == "not determined"
     assert stats.round_to(0.12064, 0.0049) == 0.1206
     assert stats.round_to(19387.2, 3456.0) == 19400.0
+
+
+def _cand(name: str, resid: np.ndarray, significant: bool = True) -> dg.Candidate:
+    base = 1.0
+    rem = 1 - float(np.mean(resid ** 2)) / base
+    return dg.Candidate(name, "", {}, {}, {}, rem, {}, 10.0, significant, test_resid=resid)
+
+
+def test_a_ranking_that_changes_across_trials_or_windows_is_warned_about() -> None:
+    n = 40
+    data = ft.Data([], "force", None, [["hammer_angle"], ["hammer_angle"]],
+                   [np.arange(n) / 2000] * 2, [], [], [], [np.ones(n, bool)] * 2)
+    base = np.ones(2 * n)
+    # the string explains trial 0 entirely, the back check half of both: trials disagree
+    string = np.r_[np.zeros(n), np.ones(n)]
+    check = np.full(2 * n, math.sqrt(0.45))
+    notes = dg.stability_notes([_cand("compliant_string", string),
+                                _cand("backcheck_law", check)], base, data)
+    assert len(notes) == 1 and "trial 0: compliant_string" in notes[0] \
+        and "trial 1: backcheck_law" in notes[0], notes
+    # one effect best everywhere: no warning
+    assert dg.stability_notes([_cand("compliant_string", 0.1 * base),
+                               _cand("backcheck_law", check)], base, data) == []
+
+
+def test_an_effect_whose_own_parameters_are_off_is_not_named() -> None:
+    c = dg.Candidate("key_encoder_misread", "", {"key_encoder_misread.sensitivity": 0.55},
+                     {"key_encoder_misread.sensitivity": 4.6}, {}, 0.5, {}, 10.0, False,
+                     p_value=1e-6, train_gain=0.4)
+    from rig.model.effects import BUILTIN
+
+    c.off_z = dg._off_z([BUILTIN["key_encoder_misread"]], c.values, c.sigma)
+    dg.judge(c, 0.01, 0.2, 3.0, 1.96)
+    assert not c.significant and "off values" in c.why_not
+    c.sigma["key_encoder_misread.sensitivity"] = 0.1
+    c.off_z = dg._off_z([BUILTIN["key_encoder_misread"]], c.values, c.sigma)
+    dg.judge(c, 0.01, 0.2, 3.0, 1.96)
+    assert c.significant
+    # worse than nothing reads "worse", never a negative percentage
+    c.removal = -13.047
+    assert "makes the held-out error worse" in c.describe() and "-1304" not in c.describe()

@@ -401,6 +401,41 @@ def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], jobs: int | Non
     return out
 
 
+def stability_notes(first: Sequence[Candidate], base_resid: np.ndarray, test: ft.Data
+                    ) -> list[str]:
+    """A warning when the candidates' order at the top changes between the early and late
+    half of the window, or between held-out trials (each candidate alone)."""
+    cands = [c for c in first if not c.error and c.test_resid is not None
+             and c.test_resid.shape == base_resid.shape and c.removal > 0]
+    if len(cands) < 2:
+        return []
+    segs = test.segments()
+    trial_of = [i for i, m in enumerate(test.masks) if m.any() for _ in test.channels[i]]
+    groups: dict[str, np.ndarray] = {}
+    start = 0
+    for n, tr in zip(segs, trial_of, strict=True):
+        idx = np.arange(start, start + n)
+        for key, part in (("early half of the window", idx[: n // 2]),
+                          ("late half of the window", idx[n // 2:]),
+                          (f"trial {tr}", idx)):
+            groups[key] = np.r_[groups.get(key, np.zeros(0, int)), part]
+        start += n
+    if len(set(trial_of)) < 2:
+        groups = {k: v for k, v in groups.items() if not k.startswith("trial")}
+    tops = {}
+    for key, idx in groups.items():
+        e0 = float(np.sum(base_resid[idx] ** 2))
+        if e0 <= 0:
+            continue
+        best = max(cands, key=lambda c: -float(np.sum(np.asarray(c.test_resid)[idx] ** 2)))
+        tops[key] = best.name
+    if len(set(tops.values())) <= 1:
+        return []
+    return ["warning: the ranking depends on the window or trial (first alone: "
+            + "; ".join(f"{k}: {v}" for k, v in tops.items())
+            + "); check the verdict on another window (--duration) or more trials"]
+
+
 def _instance(c: Candidate, cls: type[Effect]) -> Effect:
     pre = cls.name + "."
     return cls(**{k[len(pre):]: v for k, v in c.values.items() if k.startswith(pre)})
@@ -431,7 +466,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     sigs = sg.signatures(comp, comp.models[0], align_s)
     base_preds = test.simulate(base)
     base_test = test.channel_ms(base_preds)
-    state = State([], test.residuals(base_preds), base_test,
+    base_resid = test.residuals(base_preds)
+    state = State([], base_resid, base_test,
                   float(np.mean(train.residuals(train.simulate(base)) ** 2)))
     classes = candidates_for(base, candidates, extra)
     implies = {cls.name: cls.implies for cls in classes}
@@ -469,6 +505,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                       best.test_resid if best.test_resid is not None else state.test_resid,
                       {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
                       best.train_cost)
+    if first:
+        notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
         notes += _backward(chosen, by_name, ctx, base_test, alpha)
     for c in first:
