@@ -87,8 +87,9 @@ def main() -> None:
                   flush=True)
         k = args.seeds
         cover = f"{covered}/{checked}" if checked else "-"
-        print(f"{case:<46}{top1 / k if hidden else float('nan'):>8.2f}{exact / k:>8.2f}"
-              f"{alarms / k if not hidden else float('nan'):>8.2f}{cover:>12}"
+        top = f"{top1 / k:.2f}" if hidden else "-"
+        alarm = f"{alarms / k:.2f}" if not hidden else "-"
+        print(f"{case:<46}{top:>8}{exact / k:>8.2f}{alarm:>8}{cover:>12}"
               f"{statistics.mean(times):>8.1f}", flush=True)
 
 
