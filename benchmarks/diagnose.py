@@ -1,9 +1,9 @@
 """Time of a full `rig diagnose` of a forte run against the base model, all candidates.
 
-    .venv/bin/python benchmarks/diagnose.py             # 2 repeats
-    .venv/bin/python benchmarks/diagnose.py --repeats 1
+    .venv/bin/python benchmarks/diagnose.py             # 2 repeats, 2 trials, joint search
+    .venv/bin/python benchmarks/diagnose.py --repeats 1 --trials 1 --single
 
-The run: `rig synth` of the whole forte profile (0.6 s at 2 kHz, one trial, the
+The run: `rig synth` of the whole forte profile (0.6 s at 2 kHz, ``--trials`` trials, the
 built-in simulated rig: drive model, noisy load cell, quantized encoders) from a truth
 with a compliant string; the analysis model is the rigid base model, so every effect of
 the library is a candidate (held-out: alternate 2 ms blocks). By default the load cell
@@ -29,6 +29,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--jobs", type=int, default=None, help="processes (default: cores)")
     ap.add_argument("--filtered", action="store_true", help="filter the load cell at 100 Hz")
+    ap.add_argument("--trials", type=int, default=2, help="trials of the forte blow")
+    ap.add_argument("--single", action="store_true", help="single-candidate ranking only")
     args = ap.parse_args()
 
     from rig import profiles
@@ -42,7 +44,8 @@ def main() -> None:
     truth = ActionModel(effects=[{"compliant_string": {"stiffness": 3e4}}])
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "forte.h5"
-        synth.synth(truth, [forte], path, seed=11, load_cell_filter=args.filtered)
+        synth.synth(truth, [forte], path, seed=11, load_cell_filter=args.filtered,
+                    trials=args.trials)
         meas = ms.load(path)
     base = ActionModel()
     for name in BUILTIN:  # compile every effect's code paths and warm the caches
@@ -51,18 +54,18 @@ def main() -> None:
     diag = None
     for _ in range(args.repeats):
         t0 = time.perf_counter()
-        diag = dg.diagnose(base, meas, jobs=args.jobs)
+        diag = dg.diagnose(base, meas, jobs=args.jobs, single=args.single)
         walls.append(time.perf_counter() - t0)
     assert diag is not None
     print(f"forte run ({'filtered' if args.filtered else 'unfiltered'} load cell): "
-          f"{meas[0].duration:.3f} s at {meas[0].rate:g} Hz, "
+          f"{len(meas)} trial(s) of {meas[0].duration:.3f} s at {meas[0].rate:g} Hz, "
+          f"{'single-candidate ranking' if args.single else 'joint search'}, "
           f"{len(diag.candidates)} candidates, {os.cpu_count()} cores, jobs "
           f"{args.jobs or os.cpu_count()}")
     print(f"diagnose wall: best {min(walls):.1f} s, median {statistics.median(walls):.1f} s "
           f"(target < 60 s: {'met' if min(walls) < 60 else 'missed'})")
-    for i, c in enumerate(diag.candidates, 1):
-        print(f"  {i}. {c.describe()}")
-    print(diag.verdict())
+    for line in diag.report_lines():
+        print(line)
 
 
 if __name__ == "__main__":

@@ -605,8 +605,13 @@ def diagnose_cmd(
     extra: Annotated[list[str] | None, typer.Option(
         help="also try a user effect (module:Class or file.py:Class)")] = None,
     jobs: Annotated[int | None, typer.Option(help="processes (default: one per core)")] = None,
+    single: Annotated[bool, typer.Option(
+        "--single", help="rank each candidate alone (no joint search)")] = False,
+    backward: Annotated[bool, typer.Option(
+        "--backward", help="after the joint search, check each chosen effect is needed")
+    ] = False,
     write: Annotated[Path | None, typer.Option(
-        help="save the model with the winning effect and its fitted values here")] = None,
+        help="save the model with the chosen effects and their fitted values here")] = None,
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
 ) -> None:
     """Where the model fails, and which library effect removes the residual."""
@@ -618,7 +623,8 @@ def diagnose_cmd(
             task = bar.add_task("fitting candidate effects", total=None, sim="")
             diag = svc.diagnose(run, model, input=input, duration=duration, trials=trial,
                                 channels=channel, candidates=candidate, extra=extra or (),
-                                jobs=jobs, write=write, report_path=report,
+                                jobs=jobs, single=single, backward=backward, write=write,
+                                report_path=report,
                                 progress=_analysis_progress(bar, task))
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
@@ -660,9 +666,11 @@ def fit_cmd(
                           progress=_analysis_progress(bar, task))
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
+    from rig.analysis.stats import fmt
+
     for t in res.targets:
-        console.print(f"{t.label} = {res.values[t.label]:.6g} +- {res.sigma[t.label]:.2g} "
-                      f"{t.units} (start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
+        console.print(f"{t.label} = {fmt(res.values[t.label], res.sigma[t.label], t.units)} "
+                      f"(start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
                       markup=False, highlight=False)
     console.print(f"normalized mean square residual {res.cost_start:.4g} -> {res.cost:.4g} "
                   f"({res.nfev} evaluations; {res.message})", markup=False, highlight=False)

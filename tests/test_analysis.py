@@ -309,3 +309,16 @@ def test_library_effects_declare_what_they_imply() -> None:
     assert BUILTIN["key_encoder_misread"].implies == ("key_liftoff",)
     for cls in BUILTIN.values():
         assert all(name in BUILTIN and name != cls.name for name in cls.implies)
+
+
+def test_compare_table_has_no_nan_when_the_model_is_a_few_ms_off(tmp_path: Path) -> None:
+    """Issue 13: a model a few ms late printed "+nan (measured nan)" for every event."""
+    truth = ActionModel(effects=[{"drive_dynamics": {"delay": 0.004, "bandwidth": 60.0}}])
+    path = tmp_path / "late.h5"
+    synth.synth(truth, [profiles.load(FORTE)], path, seed=3, duration=0.12,
+                load_cell_filter=False)
+    meas = ms.load(path)[0]
+    comp = cp.compare(meas, [("base", ActionModel())], duration=0.12)
+    text = cp.table(comp)
+    assert not re.search(r"\bnan\b", text, re.I), text
+    assert math.isfinite(comp.events["strike"]), text

@@ -228,6 +228,9 @@ def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.
         for c in EVENT_CHANNELS.get(name, ()):
             if c in measured and c in ref_pred:
                 tau = local_shift(time, measured[c], ref_pred[c], t_model)
+                if not math.isfinite(tau):  # the model is several ms off: look wider
+                    tau = local_shift(time, measured[c], ref_pred[c], t_model,
+                                      half_window=0.008, max_shift=0.02)
                 if math.isfinite(tau):
                     ev[name], src[name] = t_model + tau, f"aligned on {c}"
                     break
@@ -345,9 +348,11 @@ def table(comp: Comparison) -> str:
     lines.append("-" * len(head))
     for name, event, units in KEY_EVENTS:
         meas_v = comp.strike_speed if not event else comp.events.get(event, math.nan) * 1e3
-        vals = [f"{m.event_errors[name]:+.3g}" for m in comp.models]
+        vals = [f"{m.event_errors[name]:+.3g}" if math.isfinite(m.event_errors[name])
+                else "n/a" for m in comp.models]
         lines.append(f"{name + ' err [' + units + ']':<26}{'':>8}" + "".join(
-            f"{v:>{w}}" for v in vals) + f"   (measured {meas_v:.4g})")
+            f"{v:>{w}}" for v in vals) + (f"   (measured {meas_v:.4g})" if math.isfinite(
+                meas_v) else "   (not found in the measurement)"))
     fails = [f"{m.label}: simulation failed ({m.result.message})" for m in comp.models
              if not m.ok]
     return "\n".join(lines + fails)

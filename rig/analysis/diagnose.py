@@ -1,25 +1,44 @@
-"""Where a model fails against measurements, and which library effect is missing.
+"""Where a model fails against measurements, and which effects are missing.
 
 (1) The base model is compared with the trial and each channel's residual in
-each phase gets a signature (rig.analysis.signature). (2) Every effect of the
-library not already in the model is a candidate: it is added with its default
-values, its parameters marked ``fitted`` are fitted within their bounds on the
-training samples (a coarse one-at-a-time scan across the bounds, then scipy
-least squares), and the fitted model is scored on the held-out samples (other
+each phase gets a signature (rig.analysis.signature). (2) Joint search (the
+default): forward selection over the library's effects not in the model (and
+``extra`` user effects). In each round every remaining candidate is added to
+the effects chosen so far, the fitted parameters of ALL of them are refitted
+together on the training samples (a coarse scan of the new candidate's
+parameters across their bounds, then scipy least squares from the chosen
+set's current values), and the result is scored on held-out samples (other
 trials when there are several, else alternate 2 ms blocks of the one trial).
+The best significant addition joins the set; the search stops when no
+addition is significant (or at ``max_effects``). An optional backward pass
+drops a chosen effect whose removal (with a joint refit of the rest) does not
+make the held-out error significantly worse. The last accepted joint fit is
+the final one: its values, HAC uncertainties and correlations are reported.
+``single=True`` gives only the first round: each candidate alone against the
+model, ranked.
+
+A candidate counts as significant only when all hold:
+- it lowers the training error and removes at least ``min_gain`` of the held-out
+  error the current model leaves (mean over channels of the mean square residual
+  over the channel's range squared), and on some channel a held-out mean square
+  of at least ``min_noise_gain`` times the channel's noise variance;
+- the held-out improvement passes a one-sided Diebold-Mariano-type test
+  (rig.analysis.stats.improvement_test: the mean difference of squared
+  residuals, its variance from a Newey-West long-run estimate, within each
+  trial's channel, of the part that varies with the held-out noise) at level
+  ``alpha`` divided by the number of candidates in the round (Bonferroni: the
+  whole round's false-alarm rate is at most ``alpha``);
+- a parameter that has an "off" value (EffectParameter.off) is not within
+  ``z_off`` (1.96) standard errors of it for every such parameter: an effect
+  whose own parameters are indistinguishable from "off" explains nothing. An
+  effect that switches on another candidate (``Effect.implies``) must pass this
+  on its own parameters, or it is not named: the effect it implies is.
+
 Before scoring, each trial's prediction may shift as a whole by up to
 ``align_s`` (0.5 ms): the input's noise moves a blow by a few tenths of a ms
-from trial to trial, and no effect should get credit for that. Candidates are
-ranked by the share of the held-out error they remove (mean over channels of
-the mean square residual over the channel's range squared). An improvement is
-significant when it removes at least ``min_gain`` of that error and, on some
-channel, a mean square of at least ``min_noise_gain`` times the channel's
-noise variance (the removed part stands clear of the noise). A candidate that
-switches on another candidate (``Effect.implies``) ranks after it unless it
-removes ``min_gain`` of the error that one leaves. Candidates are fitted in
-parallel, one process per core.
+from trial to trial, and no effect should get credit for that. Candidates of a
+round are fitted in parallel, one process per core.
 """
-
 from __future__ import annotations
 
 import math
@@ -35,14 +54,22 @@ import yaml
 from rig.analysis import compare as cp
 from rig.analysis import fit as ft
 from rig.analysis import signature as sg
+from rig.analysis import stats
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect
 
 
+def _unit(u: str) -> str:
+    return "" if u in ("", "1") else u
+
+
 @dataclass
 class Candidate:
-    """One library effect added to the model, fitted and scored on held-out data."""
+    """One effect added to the chosen set, the set refitted and scored on held-out data.
+
+    ``values``, ``sigma`` and ``units`` are keyed by ``effect.param`` for every fitted
+    parameter of the set (the chosen effects' and this candidate's)."""
 
     name: str
     summary: str
@@ -57,16 +84,42 @@ class Candidate:
     nfev: int = 0
     error: str = ""                     # why the candidate could not be evaluated
     note: str = ""                      # how it ranks against an effect it implies
+    p_value: float = 1.0                # one-sided held-out test (before Bonferroni)
+    train_gain: float = 0.0             # share of the training error removed
+    off_z: float = math.inf             # largest |value - off| / sigma (inf: no off value)
+    corr: dict[tuple[str, str], float] = field(default_factory=dict)
+    effects: tuple[str, ...] = ()       # the whole set (chosen so far + this one)
+    why_not: str = ""                   # the first condition of significance that fails
+    train_cost: float = math.nan
+    test_noise: dict[str, float] = field(default_factory=dict)  # held-out MS / noise^2
+    test_resid: np.ndarray | None = field(default=None, repr=False)
+
+    def own(self) -> dict[str, float]:
+        """This candidate's own fitted values (``param: value``)."""
+        pre = self.name + "."
+        return {k[len(pre):]: v for k, v in self.values.items() if k.startswith(pre)} \
+            if any(k.startswith(pre) for k in self.values) else dict(self.values)
+
+    def value_text(self, only_own: bool = True) -> str:
+        pre = self.name + "."
+        items = [(k, v) for k, v in self.values.items()
+                 if not only_own or k.startswith(pre) or "." not in k]
+        return ", ".join(
+            f"{k[len(pre):] if only_own and k.startswith(pre) else k} = "
+            f"{stats.fmt(v, self.sigma.get(k, math.nan), self.units.get(k, ''))}"
+            for k, v in items) or "no fitted parameter"
+
+    def gain_text(self) -> str:
+        if self.removal < 0:
+            return "makes the held-out error worse"
+        return f"removes {self.removal * 100:.1f} % of the held-out error"
 
     def describe(self) -> str:
         if self.error:
             return f"{self.name}: not evaluated ({self.error})"
-        vals = ", ".join(
-            f"{k} = {v:.4g} +- {self.sigma.get(k, math.nan):.2g} {self.units.get(k, '')}".rstrip()
-            for k, v in self.values.items()) or "no fitted parameter"
-        sig = "significant" if self.significant else "not significant"
-        return (f"{self.name}: removes {self.removal * 100:.1f} % of the held-out error "
-                f"({sig}; {self.noise_gain:.1f} x noise variance); {vals}"
+        sig = "significant" if self.significant else (
+            "not significant" + (f": {self.why_not}" if self.why_not else ""))
+        return (f"{self.name}: {self.gain_text()} ({sig}); {self.value_text()}"
                 + (f"; {self.note}" if self.note else ""))
 
 
@@ -84,8 +137,9 @@ def rank(candidates: list[Candidate], implies: Mapping[str, Sequence[str]],
                 continue
             left = 1.0 - b.removal
             extra = (a.removal - b.removal) / left if left > 0 else 0.0
-            a.note = (f"includes {b_name}; removes {extra * 100:.1f} % of the error "
-                      f"{b_name} leaves")
+            a.note = (f"includes {b_name}; " + (
+                f"removes {extra * 100:.1f} % of the error {b_name} leaves" if extra >= 0
+                else f"worse than {b_name} alone"))
             ia, ib = out.index(a), out.index(b)
             if extra < min_gain and ia < ib:
                 out.insert(ib, out.pop(ia))
@@ -97,12 +151,15 @@ class Diagnosis:
     comparison: cp.Comparison
     signatures: list[sg.Signature]
     base_error: dict[str, float]        # held-out mean square / range^2 per channel
-    candidates: list[Candidate]
+    candidates: list[Candidate]         # first round: each candidate alone, ranked
     split: str
     min_gain: float
     min_noise_gain: float
     wall_s: float = 0.0
     notes: list[str] = field(default_factory=list)
+    chosen: list[Candidate] = field(default_factory=list)  # accepted, in order (joint)
+    single: bool = False
+    refs: dict[str, str] = field(default_factory=dict)     # user effect name -> file.py:Class
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
         """Share of the held-out error the candidate removes on these channels together."""
@@ -115,16 +172,58 @@ class Diagnosis:
 
     @property
     def best(self) -> Candidate | None:
-        """The top-ranked candidate if its improvement is significant."""
+        """The first effect chosen (the top-ranked significant candidate)."""
+        if self.chosen:
+            return self.chosen[0]
         return self.candidates[0] if self.candidates and self.candidates[0].significant else None
 
+    @property
+    def final(self) -> Candidate | None:
+        """The last accepted joint fit: every chosen effect's values together."""
+        return self.chosen[-1] if self.chosen else self.best
+
+    @property
+    def chosen_names(self) -> list[str]:
+        f = self.final
+        return list(f.effects or (f.name,)) if f is not None else []
+
+    def total_removal(self) -> float:
+        f = self.final
+        if f is None:
+            return 0.0
+        e0 = float(np.mean(list(self.base_error.values())))
+        e1 = float(np.mean([f.test_error[c] for c in self.base_error if c in f.test_error]))
+        return 1 - e1 / e0 if e0 > 0 else 0.0
+
     def verdict(self) -> str:
-        best = self.best
-        if best is not None:
-            return f"missing effect: {best.describe()}"
+        f = self.final
+        if f is not None:
+            names = self.chosen_names
+            head = ("missing effect: " if len(names) == 1 else "missing effects (joint fit): ")
+            vals = "; ".join(f"{n}: " + (", ".join(
+                f"{k.split('.', 1)[1]} = "
+                f"{stats.fmt(v, f.sigma.get(k, math.nan), f.units.get(k, ''))}"
+                for k, v in f.values.items() if k.startswith(n + ".")) or "no fitted parameter")
+                for n in names)
+            gain = self.total_removal()
+            how = (f"removes {gain * 100:.1f} % of the held-out error" if gain >= 0
+                   else "the held-out error is worse")
+            return f"{head}{' + '.join(names)} ({how}): {vals}"
         sig = "; ".join(s.text() for s in self.signatures[:3])
         return ("no library effect explains the residual: no candidate removes a significant "
-                f"share of the held-out error. Residual signature: {sig}")
+                f"share of the held-out error. Where it is: {sig}. If the physics is missing "
+                "from the library, write it as a user effect (docs/effects.md) and try it with "
+                "--extra file.py:Class")
+
+    def correlation_lines(self) -> list[str]:
+        f = self.final
+        if f is None or not f.corr:
+            return []
+        strong = [(a, b, r) for (a, b), r in f.corr.items() if abs(r) >= 0.5]
+        if not strong:
+            return ["fitted values are nearly uncorrelated (all |r| < 0.5)"]
+        return ["strongly correlated fitted values (the data tell their combination better "
+                "than each): " + ", ".join(f"{a} ~ {b} r = {r:+.2f}" for a, b, r in strong)]
 
     def report_lines(self) -> list[str]:
         comp = self.comparison
@@ -136,10 +235,18 @@ class Diagnosis:
         lines.append("largest residuals by channel and phase:")
         for s in self.signatures[:6]:
             lines.append("  " + s.text())
-        lines.append("candidates (ranked by held-out error removed):")
+        lines.append("each candidate alone (ranked by held-out error removed):")
         for i, c in enumerate(self.candidates, 1):
             lines.append(f"  {i}. {c.describe()}")
+        if not self.single:
+            lines.append("joint search (forward selection, each step refits the whole set):")
+            for i, c in enumerate(self.chosen, 1):
+                lines.append(f"  step {i}: + {c.name}: {c.gain_text()} the set before it "
+                             f"left (held-out p = {c.p_value:.2g})")
+            if not self.chosen:
+                lines.append("  no effect added")
         lines.append(self.verdict())
+        lines += self.correlation_lines()
         return lines + self.notes
 
 
@@ -165,75 +272,116 @@ def candidates_for(base: ActionModel, names: Sequence[str] | None = None,
     return pool
 
 
+@dataclass
+class State:
+    """The model so far: chosen effects (instances with fitted values) and its errors."""
+
+    chosen: list[Effect]
+    test_resid: np.ndarray
+    test_ms: dict[str, tuple[float, float]]
+    train_cost: float
+
+
+def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
+           sigma: Mapping[str, float]) -> float:
+    """Largest |value - off| / sigma over the parameters of ``classes`` with an off value
+    (inf when none has one; 0 when a sigma is unknown)."""
+    zs = []
+    for cls in classes:
+        for p in cls.parameters:
+            key = f"{cls.name}.{p.name}"
+            if p.off is None or key not in values:
+                continue
+            s = sigma.get(key, math.nan)
+            zs.append(abs(values[key] - p.off) / s if math.isfinite(s) and s > 0 else 0.0)
+    return max(zs) if zs else math.inf
+
+
 def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, test: ft.Data,
-                       base_test: Mapping[str, tuple[float, float]], max_nfev: int,
-                       min_gain: float, min_noise_gain: float, scan: int = 4) -> Candidate:
-    """Add ``cls`` to the model, fit its fitted parameters on ``train``, score on ``test``."""
-    specs = [f"{cls.name}.{p.name}" for p in cls.parameters if p.fitted]
-    units = {p.name: p.units for p in cls.parameters}
+                       state: State, max_nfev: int, min_gain: float, min_noise_gain: float,
+                       scan: int = 4) -> Candidate:
+    """Add ``cls`` to the chosen set, refit the whole set on ``train``, score on ``test``
+    against the set without it."""
+    chosen = list(state.chosen)
+    add: list[Effect | type[Effect]] = [*chosen, cls]
+    kinds: list[type[Effect]] = [*(type(e) for e in chosen), cls]
+    specs = [f"{e.name}.{p.name}" for e in kinds for p in e.parameters if p.fitted]
+    new = [f"{cls.name}.{p.name}" for p in cls.parameters if p.fitted]
+    units = {f"{e.name}.{p.name}": _unit(p.units) for e in kinds for p in e.parameters}
+    names = (*(e.name for e in chosen), cls.name)
     try:
         if specs:
-            res = ft.fit(base, train, specs, [cls], jobs=1, max_nfev=max_nfev, scan=scan)
-            values = {t.key: res.values[t.label] for t in res.targets}
-            sigma = {t.key: res.sigma[t.label] for t in res.targets}
-            targets, tvals, nfev = res.targets, res.values, res.nfev
+            res = ft.fit(base, train, specs, add, jobs=1, max_nfev=max_nfev, scan=scan,
+                         scan_labels=new)
+            values, sigma = dict(res.values), dict(res.sigma)
+            targets, nfev, train_cost = res.targets, res.nfev, res.cost
+            corr = ({(a.label, b.label): float(res.corr[i, j])
+                     for i, a in enumerate(targets) for j, b in enumerate(targets) if i < j}
+                    if res.corr is not None else {})
         else:
-            values, sigma, targets, tvals, nfev = {}, {}, [], {}, 0
-        model = ft.rebuild(base, [cls], tvals, targets, test.measurements[0].rate)
-        cand = test.channel_ms(test.simulate(model))
+            targets, values, sigma, nfev, corr = [], {}, {}, 0, {}
+            train_cost = float(np.mean(train.residuals(train.simulate(
+                ft.rebuild(base, add, rate=train.measurements[0].rate))) ** 2))
+        model = ft.rebuild(base, add, values, targets, test.measurements[0].rate)
+        preds = test.simulate(model)
+        cand = test.channel_ms(preds)
+        resid = test.residuals(preds)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError) as exc:
         return Candidate(cls.name, cls.summary, {}, {}, units, -math.inf, {}, 0.0, False,
-                         error=f"{type(exc).__name__}: {exc}")
-    e_base = float(np.mean([v[0] for v in base_test.values()]))
-    e_cand = float(np.mean([cand[c][0] for c in base_test]))
-    removal = 1 - e_cand / e_base if e_base > 0 else 0.0
-    ch_rem = {c: (1 - cand[c][0] / base_test[c][0]) if base_test[c][0] > 0 else 0.0
-              for c in base_test}
-    gain = max(base_test[c][1] - cand[c][1] for c in base_test)
+                         error=f"{type(exc).__name__}: {exc}", effects=names)
+    cur = state.test_ms
+    e_cur = float(np.mean([v[0] for v in cur.values()]))
+    e_cand = float(np.mean([cand[c][0] for c in cur]))
+    removal = 1 - e_cand / e_cur if e_cur > 0 else 0.0
+    ch_rem = {c: (1 - cand[c][0] / cur[c][0]) if cur[c][0] > 0 else 0.0 for c in cur}
+    gain = max(cur[c][1] - cand[c][1] for c in cur)
+    _, p = stats.improvement_test(state.test_resid, resid, test.segments())
+    train_gain = 1 - train_cost / state.train_cost if state.train_cost > 0 else 0.0
+    off_z = _off_z([cls], values, sigma)
     return Candidate(cls.name, cls.summary, values, sigma, units, removal, ch_rem, gain,
-                     removal >= min_gain and gain >= min_noise_gain,
-                     {c: cand[c][0] for c in base_test}, nfev)
+                     False, {c: cand[c][0] for c in cur}, nfev, p_value=p,
+                     train_gain=train_gain, off_z=off_z, corr=corr, effects=names,
+                     train_cost=train_cost, test_noise={c: cand[c][1] for c in cur},
+                     test_resid=resid)
+
+
+def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
+          z_off: float) -> None:
+    """Set ``c.significant`` and, if not, ``c.why_not`` (the first condition that fails)."""
+    if c.error:
+        return
+    checks = [
+        (c.train_gain > 0, "does not improve the training data"),
+        (c.removal >= min_gain, f"removes less than {min_gain * 100:.0f} % of the "
+                                "held-out error" if c.removal >= 0 else ""),
+        (c.noise_gain >= min_noise_gain, "the part it removes does not stand clear of the "
+                                         "noise"),
+        (c.p_value <= alpha, f"held-out improvement could be noise (p = {c.p_value:.2g} > "
+                             f"{alpha:.2g})"),
+        (c.off_z >= z_off,  # inf (no off value) passes
+         "its own parameters are indistinguishable from their off values"),
+    ]
+    c.significant = all(ok for ok, _ in checks)
+    c.why_not = next((why for ok, why in checks if not ok), "")
 
 
 def _worker(i: int) -> Candidate:
     c = _CTX["diagnose"]
     return evaluate_candidate(c["classes"][i], c["base"], c["train"], c["test"],
-                              c["base_test"], c["max_nfev"], c["min_gain"],
+                              c["state"], c["max_nfev"], c["min_gain"],
                               c["min_noise_gain"], c["scan"])
 
 
-def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
-             duration: float | None = None, channels: Sequence[str] | None = None,
-             candidates: Sequence[str] | None = None, extra: Sequence[type[Effect]] = (),
-             jobs: int | None = None, max_nfev: int = 10, scan: int = 4, min_gain: float = 0.2,
-             min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
-             progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
-    """Signatures of the base model's residual and the ranked candidate effects."""
-    import time as _time
-
-    if not measurements:
-        raise ValueError("measurements: expected at least one trial")
-    wall0 = _time.perf_counter()
-    data = ft.Data.build(measurements, input, duration, channels, align_s=align_s)
-    train_m, test_m = ft.split_masks(data)
-    train, test = data.subset(train_m), data.subset(test_m)
-    split = (f"{len(measurements)} trials: fit on even, score on odd" if len(measurements) > 1
-             else "one trial: fit on even 2 ms blocks, score on odd ones")
-    base = ft.rebuild(base, rate=measurements[0].rate)
-    comp = cp.compare(measurements[0], [(label, base)], input, duration, channels)
-    sigs = sg.signatures(comp, comp.models[0], align_s)
-    base_test = test.channel_ms(test.simulate(base))
-    classes = candidates_for(base, candidates, extra)
+def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], jobs: int | None,
+           progress: Callable[[float, float, str], None] | None, what: str
+           ) -> list[Candidate]:
     total = len(classes)
     if progress:
-        progress(0, total, "fitting candidates")
+        progress(0, total, what)
     out: list[Candidate] = []
     pool = ft.make_pool(min(jobs, total) if jobs is not None else min(total, 64)) \
         if total > 1 else None
-    _CTX["diagnose"] = {"classes": classes, "base": base, "train": train, "test": test,
-                        "base_test": base_test, "max_nfev": max_nfev, "scan": scan,
-                        "min_gain": min_gain,
-                        "min_noise_gain": min_noise_gain}
+    _CTX["diagnose"] = {**ctx, "classes": list(classes)}
     try:
         if pool is None:
             for i, cls in enumerate(classes):
@@ -250,18 +398,172 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         _CTX.pop("diagnose", None)
         if pool is not None:
             pool.shutdown()
-    out = rank(out, {cls.name: cls.implies for cls in classes}, min_gain)
+    return out
+
+
+def stability_notes(first: Sequence[Candidate], base_resid: np.ndarray, test: ft.Data
+                    ) -> list[str]:
+    """A warning when the candidates' order at the top changes between the early and late
+    half of the window, or between held-out trials (each candidate alone)."""
+    cands = [c for c in first if not c.error and c.test_resid is not None
+             and c.test_resid.shape == base_resid.shape and c.removal > 0]
+    if len(cands) < 2:
+        return []
+    segs = test.segments()
+    trial_of = [i for i, m in enumerate(test.masks) if m.any() for _ in test.channels[i]]
+    groups: dict[str, np.ndarray] = {}
+    start = 0
+    for n, tr in zip(segs, trial_of, strict=True):
+        idx = np.arange(start, start + n)
+        for key, part in (("early half of the window", idx[: n // 2]),
+                          ("late half of the window", idx[n // 2:]),
+                          (f"trial {tr}", idx)):
+            groups[key] = np.r_[groups.get(key, np.zeros(0, int)), part]
+        start += n
+    if len(set(trial_of)) < 2:
+        groups = {k: v for k, v in groups.items() if not k.startswith("trial")}
+    tops = {}
+    for key, idx in groups.items():
+        e0 = float(np.sum(base_resid[idx] ** 2))
+        if e0 <= 0:
+            continue
+        best = max(cands, key=lambda c: -float(np.sum(np.asarray(c.test_resid)[idx] ** 2)))
+        tops[key] = best.name
+    if len(set(tops.values())) <= 1:
+        return []
+    return ["warning: the ranking depends on the window or trial (first alone: "
+            + "; ".join(f"{k}: {v}" for k, v in tops.items())
+            + "); check the verdict on another window (--duration) or more trials"]
+
+
+def _instance(c: Candidate, cls: type[Effect]) -> Effect:
+    pre = cls.name + "."
+    return cls(**{k[len(pre):]: v for k, v in c.values.items() if k.startswith(pre)})
+
+
+def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
+             duration: float | None = None, channels: Sequence[str] | None = None,
+             candidates: Sequence[str] | None = None, extra: Sequence[type[Effect]] = (),
+             jobs: int | None = None, max_nfev: int = 10, scan: int = 4, min_gain: float = 0.2,
+             min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
+             single: bool = False, max_effects: int = 3, alpha: float = 0.05,
+             z_off: float = 1.96, backward: bool = False,
+             progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
+    """Signatures of the base model's residual, each candidate alone, and (unless
+    ``single``) the jointly fitted set of effects a forward selection chooses."""
+    import time as _time
+
+    if not measurements:
+        raise ValueError("measurements: expected at least one trial")
+    wall0 = _time.perf_counter()
+    data = ft.Data.build(measurements, input, duration, channels, align_s=align_s)
+    train_m, test_m = ft.split_masks(data)
+    train, test = data.subset(train_m), data.subset(test_m)
+    split = (f"{len(measurements)} trials: fit on even, score on odd" if len(measurements) > 1
+             else "one trial: fit on even 2 ms blocks, score on odd ones")
+    base = ft.rebuild(base, rate=measurements[0].rate)
+    comp = cp.compare(measurements[0], [(label, base)], input, duration, channels)
+    sigs = sg.signatures(comp, comp.models[0], align_s)
+    base_preds = test.simulate(base)
+    base_test = test.channel_ms(base_preds)
+    base_resid = test.residuals(base_preds)
+    state = State([], base_resid, base_test,
+                  float(np.mean(train.residuals(train.simulate(base)) ** 2)))
+    classes = candidates_for(base, candidates, extra)
+    implies = {cls.name: cls.implies for cls in classes}
+    by_name = {cls.name: cls for cls in classes}
+    ctx = {"base": base, "train": train, "test": test, "max_nfev": max_nfev, "scan": scan,
+           "min_gain": min_gain, "min_noise_gain": min_noise_gain}
+    notes: list[str] = []
+    py_note = ft.python_integrator_note(base, classes)
+    if py_note:
+        notes.append(py_note)
+    chosen: list[Candidate] = []
+    first: list[Candidate] = []
+    remaining = list(classes)
+    while remaining and len(chosen) < (1 if single else max_effects):
+        out = _round(remaining, {**ctx, "state": state}, jobs, progress,
+                     "fitting candidates" if not chosen else
+                     f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
+        level = alpha / max(1, len(out))
+        for c in out:
+            judge(c, level, min_gain, min_noise_gain, z_off)
+        out = rank(out, implies, min_gain)
+        # an effect implying another is named only if it beats it (rank put it after)
+        if not first:
+            first = out
+        best = next((c for c in out if c.significant), None)
+        if best is None or single:
+            if best is not None:
+                chosen.append(best)
+            break
+        chosen.append(best)
+        cls_b = by_name[best.name]
+        remaining = [c for c in remaining if c is not cls_b
+                     and c.name not in cls_b.implies]
+        state = State([*( _instance(best, by_name[n]) for n in best.effects)],
+                      best.test_resid if best.test_resid is not None else state.test_resid,
+                      {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
+                      best.train_cost)
+    if first:
+        notes += stability_notes(first, base_resid, test)
+    if backward and len(chosen) >= 2:
+        notes += _backward(chosen, by_name, ctx, base_test, alpha)
+    for c in first:
+        c.test_resid = None
+    for c in chosen:
+        c.test_resid = None
     tau = sg.common_shift(comp, comp.models[0], align_s)
-    notes = [f"(signatures taken after shifting the model by {tau * 1e3:+.2f} ms as a whole; "
-             f"at most +-{align_s * 1e3:.1f} ms)"]
+    notes.append(f"(signatures taken after shifting the model by {tau * 1e3:+.2f} ms as a "
+                 f"whole; at most +-{align_s * 1e3:.1f} ms)")
     if not comp.models[0].ok:
         notes.append(f"the base model's simulation failed: {comp.models[0].result.message}")
-    return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, out, split,
-                     min_gain, min_noise_gain, _time.perf_counter() - wall0, notes)
+    return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
+                     min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
+                     single)
 
 
-def write_model(base_yaml: Path | None, candidate: Candidate, out: Path) -> Path:
-    """The base model YAML with the candidate effect and its fitted values appended."""
+def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],
+              ctx: dict[str, Any], base_test: Mapping[str, tuple[float, float]],
+              alpha: float) -> list[str]:
+    """Report chosen effects the final set does not need (held-out test of the set without
+    each one, refitted, against the whole set)."""
+    final = chosen[-1]
+    out = []
+    names = list(final.effects)
+    for drop in names:
+        rest = [n for n in names if n != drop]
+        last = by_name[rest[-1]]
+        state = State([_instance(final, by_name[n]) for n in rest[:-1]], np.zeros(0),
+                      dict(base_test), math.inf)
+        c = evaluate_candidate(last, ctx["base"], ctx["train"], ctx["test"], state,
+                               ctx["max_nfev"], ctx["min_gain"], ctx["min_noise_gain"], 0)
+        if c.error or c.test_resid is None or final.test_resid is None:
+            continue
+        _, p = stats.improvement_test(c.test_resid, final.test_resid,
+                                      ctx["test"].segments())
+        if p > alpha / len(names):
+            out.append(f"backward check: without {drop} the set is not significantly worse "
+                       f"on held-out data (p = {p:.2g}); it may be unnecessary")
+    return out
+
+
+def write_model(base_yaml: Path | None, diagnosis: Diagnosis | Candidate, out: Path,
+                refs: Mapping[str, str] | None = None) -> Path:
+    """The base model YAML with the chosen effects and their jointly fitted values appended
+    (rounded to their uncertainty); a user effect is written as ``path.py:Class`` (relative
+    to ``out``) or ``module:Class`` so the file loads as written."""
+    if isinstance(diagnosis, Diagnosis):
+        final = diagnosis.final
+        refs = {**diagnosis.refs, **(refs or {})}
+        if final is None:
+            raise ValueError("write: no effect was chosen; nothing to write")
+        names = diagnosis.chosen_names
+        gain = diagnosis.total_removal()
+    else:
+        final, names, gain = diagnosis, list(diagnosis.effects or (diagnosis.name,)), \
+            diagnosis.removal
+    refs = dict(refs or {})
     data: dict[str, Any] = {}
     base_dir = Path.cwd()
     if base_yaml is not None:
@@ -277,13 +579,22 @@ def write_model(base_yaml: Path | None, candidate: Candidate, out: Path) -> Path
     effects = []
     for e in data.get("effects") or []:
         effects.append(_rebase_effect(e, base_dir, out_dir))
-    effects.append({candidate.name: {k: float(v) for k, v in candidate.values.items()}}
-                   if candidate.values else candidate.name)
+    for n in names:
+        vals = {k.split(".", 1)[1]: stats.round_to(float(v), final.sigma.get(k, math.nan))
+                for k, v in final.values.items() if k.startswith(n + ".")}
+        if len(names) == 1 and not vals and final.values and all(
+                "." not in k for k in final.values):
+            vals = {k: float(v) for k, v in final.values.items()}
+        ref = refs.get(n, n)
+        target, sep, cls = ref.rpartition(":")
+        if sep and target.endswith(".py"):
+            ref = f"{_rel(Path(target), out_dir)}:{cls}"
+        effects.append({ref: vals} if vals else ref)
     data["effects"] = effects
     desc = str(data.get("description", "")).strip()
     data["description"] = (desc + "\n" if desc else "") + (
-        f"rig diagnose added {candidate.name} (held-out error removed "
-        f"{candidate.removal * 100:.1f} %)")
+        f"rig diagnose added {' + '.join(names)} (held-out error "
+        + (f"removed {gain * 100:.1f} %)" if gain >= 0 else "worse)"))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(yaml.safe_dump(data, sort_keys=False))
     return out

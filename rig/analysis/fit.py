@@ -8,9 +8,11 @@ trial, so each channel weighs the same. Parameters spanning decades are fitted
 in log space. Finite-difference Jacobians evaluate their columns in parallel
 (one process per core, forked so user effects loaded from files come along).
 
-Uncertainty: the Gauss-Newton covariance ``s^2 (J^T J)^-1`` at the solution,
-inflated by ``(1 + rho) / (1 - rho)`` where ``rho`` is the residual's lag-one
-autocorrelation (neighbouring samples are not independent).
+Uncertainty: the HAC (Newey-West) sandwich covariance ``(J'J)^-1 S (J'J)^-1`` at
+the solution, ``S`` the long-run covariance of the scores ``J_t r_t`` summed
+over lags within each trial's channel with Bartlett weights up to the lag where
+the residual's autocorrelation fades (rig.analysis.stats): 2 kHz residuals are
+strongly autocorrelated and independent-noise errors would be far too small.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 from rig.model.effects import Effect
+from rig.model.integrators import Integrator
 
 FAILED_PENALTY = 1.0
 ALIGN_S = 0.0  # residual (in channel ranges) of samples a failed simulation lacks
@@ -122,7 +125,11 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
 def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
             values: dict[str, float] | None = None, targets: Sequence[Target] = (),
             rate: float | None = None) -> ActionModel:
-    """A fresh model: base's parameters and effects, extra effects, target values set."""
+    """A fresh model: base's parameters and effects, extra effects, target values set.
+
+    The base's integrator is kept unless an effect adds Python forces or states and the
+    integrator is compiled: then the model integrates with scipy-LSODA (the default for
+    such models; see ``python_integrator_note``)."""
     params = base.params.copy()
     effects: list[Effect] = []
     for e in base.effects:
@@ -141,9 +148,25 @@ def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
             if t.effect not in by_name:
                 raise ValueError(f"param: {t.label}: effect {t.effect} is not in the model")
             by_name[t.effect].set(t.key, v)
-    model = ActionModel(params, effects, base.integrator, output_rate=rate or base.output_rate)
+    integrator: Integrator | None = base.integrator
+    if any(e.runs_in_python() for e in effects) and \
+            not base.integrator.name.startswith("scipy-"):
+        integrator = None  # a compiled integrator cannot call Python forces: scipy-LSODA
+    model = ActionModel(params, effects, integrator, output_rate=rate or base.output_rate)
     model.rest_state()  # shared by every model with the same equations
     return model
+
+
+def python_integrator_note(base: ActionModel, classes: Sequence[type[Effect]]) -> str:
+    """One sentence when some of ``classes`` make ``rebuild`` leave the base's compiled
+    integrator for scipy-LSODA (empty otherwise)."""
+    if base.integrator.name.startswith("scipy-"):
+        return ""
+    names = [c.name for c in classes if c().runs_in_python()]
+    if not names:
+        return ""
+    return (f"{', '.join(names)} computes forces in Python: its models integrate with "
+            f"scipy-LSODA instead of {base.integrator.name} (slower)")
 
 
 @dataclass
@@ -230,6 +253,11 @@ class Data:
                 parts.append(np.where(np.isfinite(r), r, FAILED_PENALTY))
         return np.concatenate(parts) if parts else np.zeros(0)
 
+    def segments(self) -> list[int]:
+        """Lengths of the contiguous parts of ``residuals`` (one per trial and channel)."""
+        return [int(m.sum()) for i, m in enumerate(self.masks) if m.any()
+                for _ in self.channels[i]]
+
     def channel_ms(self, preds: list[dict[str, np.ndarray]]) -> dict[str, tuple[float, float]]:
         """Per channel over the masked samples (aligned): (mean square / range^2,
         mean square / noise^2)."""
@@ -272,6 +300,7 @@ class FitResult:
     status: int
     message: str
     history: list[float] = field(default_factory=list)
+    corr: np.ndarray | None = None  # correlation matrix of the targets (HAC covariance)
 
     @property
     def success(self) -> bool:
@@ -297,8 +326,11 @@ def make_pool(jobs: int | None) -> Executor | None:
 def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         add: Sequence[Effect | type[Effect]] = (), *, jobs: int | None = None,
         max_nfev: int = 40, diff_step: float = 0.02, scan: int = 0,
+        scan_labels: Sequence[str] | None = None,
         progress: Callable[[float, float, str], None] | None = None) -> FitResult:
-    """Fit the targets by least squares on ``data``'s masked samples (within bounds)."""
+    """Fit the targets by least squares on ``data``'s masked samples (within bounds); with
+    ``scan`` > 0 first scan ``scan`` points across the bounds of each target (or of those
+    in ``scan_labels``) one at a time for a better start."""
     extra = [a if isinstance(a, Effect) else a() for a in add]
     targets = [s if isinstance(s, Target) else target(base, s, extra) for s in specs]
     if not targets:
@@ -363,6 +395,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         if scan > 0:  # coarse one-at-a-time scan across the bounds for a good start
             best = float(np.mean(r0 ** 2))
             for j in range(len(targets)):
+                if scan_labels is not None and targets[j].label not in scan_labels:
+                    continue
                 for q in (np.arange(scan) + 0.5) / scan:
                     u = u0.copy()
                     u[j] = lo[j] + q * (hi[j] - lo[j])
@@ -376,28 +410,33 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         if pool is not None:
             pool.shutdown()
     values = values_of(sol.x)
-    sigma = _uncertainty(targets, values, sol.fun, sol.jac)
+    sigma, corr = _uncertainty(targets, values, sol.fun, sol.jac, data.segments())
     return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
                      float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
-                     str(sol.message), history)
+                     str(sol.message), history, corr)
 
 
 def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndarray,
-                 J: np.ndarray) -> dict[str, float]:
+                 J: np.ndarray, segments: Sequence[int] = ()
+                 ) -> tuple[dict[str, float], np.ndarray | None]:
+    """Standard errors from the HAC (Newey-West) sandwich covariance (rig.analysis.stats):
+    the residual's autocorrelation within each trial's channel widens them as it must."""
+    from rig.analysis import stats
+
     n, p = J.shape
     out = dict.fromkeys(values, math.nan)
-    if n <= p:
-        return out
-    rho = 0.0
-    if r.size > 2 and np.std(r) > 0:
-        rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.99))
-    s2 = float(r @ r) / (n - p) * (1 + rho) / (1 - rho)
+    if n <= p or not np.all(np.isfinite(J)) or not np.all(np.isfinite(r)):
+        return out, None
     try:
-        cov = s2 * np.linalg.pinv(J.T @ J)
+        cov = stats.sandwich_cov(J, r, list(segments) or [n])
     except np.linalg.LinAlgError:
-        return out
+        return out, None
+    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(d, d)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
     for i, t in enumerate(targets):
         v = values[t.label]
-        out[t.label] = abs(t.dv_du(v)) * math.sqrt(max(cov[i, i], 0.0))
-    return out
+        out[t.label] = abs(t.dv_du(v)) * float(d[i])
+    return out, corr
 

@@ -46,11 +46,14 @@ class Signature:
     events: dict[str, float] = field(default_factory=dict)   # event -> model - measured (s)
 
     def text(self) -> str:
-        parts = [f"bias {self.bias_share:.0%}", f"lag {self.lag_share:.0%} "
-                 f"({self.lag_s * 1e3:+.2f} ms)", f"oscillation {self.osc_share:.0%}"
+        parts = [f"bias {self.bias_share:.0%}",
+                 f"lag {self.lag_share:.0%}" + (f" ({self.lag_s * 1e3:+.2f} ms)"
+                                                if math.isfinite(self.lag_s) else ""),
+                 f"oscillation {self.osc_share:.0%}"
                  + (f" at {self.frequency_hz:.0f} Hz" if math.isfinite(self.frequency_hz)
                     else "")]
-        ev = ", ".join(f"{k} {v * 1e3:+.2f} ms" for k, v in self.events.items())
+        ev = ", ".join(f"{k} {v * 1e3:+.2f} ms" for k, v in self.events.items()
+                       if math.isfinite(v))
         return (f"{self.channel} in {self.phase}: {self.kind}, {self.nrms * 100:.2f} % of range "
                 f"({self.excess:.1f} x noise); " + "; ".join(parts) + (f"; timing: {ev}"
                                                                       if ev else ""))

@@ -54,6 +54,7 @@ class EffectParameter:
     fitted: bool = False
     description: str = ""
     path: str | None = None  # the model parameter it sets, if any (dotted path)
+    off: float | None = None  # the value at which the effect changes nothing (if any)
 
 
 @dataclass(frozen=True)
@@ -340,7 +341,7 @@ class KeyEncoderMisread(Effect):
     parameters = (
         EffectParameter("sensitivity", "rad/m", 63.0, (-500.0, 500.0), True,
                         "false rotation per metre of lift (1/scale radius for a head level "
-                        "with the centre; R3213: 15.9 mm)"),
+                        "with the centre; R3213: 15.9 mm)", off=0.0),
     )
     signature = Signature(
         ("key_angle",), ("check", "release"), "shape", None,
@@ -369,11 +370,11 @@ class BackcheckLaw(Effect):
                "hammer is held (Section 4.1.5).")
     parameters = (
         EffectParameter("stiffness_scale", "1", 1.0, (0.05, 20.0), True,
-                        "scale on the felt's stiffness polynomial"),
+                        "scale on the felt's stiffness polynomial", off=1.0),
         EffectParameter("friction", "1", 0.434, (0.0, 1.5), True,
-                        "kinetic friction coefficient A", "contacts.4.A"),
+                        "kinetic friction coefficient A", "contacts.4.A", off=0.434),
         EffectParameter("damping", "s/m", 2.446, (0.0, 50.0), True, "damping factor D",
-                        "contacts.4.D"),
+                        "contacts.4.D", off=2.446),
     )
     signature = Signature(
         ("hammer_angle", "shank_strain"), ("check",), "bias", None,

@@ -11,6 +11,7 @@ import yaml
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.model.action import ActionModel
+from rig.model.effects import make
 
 
 def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
@@ -42,7 +43,11 @@ def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
         data = yaml.safe_load(Path(model_file).read_text()) or {}
         base_dir = Path(model_file).resolve().parent
     out_dir = Path(out).resolve().parent
-    effects = [_rebase_effect(e, base_dir, out_dir) for e in data.get("effects") or []]
+    listed = data.get("effects") or []
+    # each listed effect's own name (a user effect is listed as path.py:Class or
+    # module:Class, its name is the class's ``name``)
+    names = [make(e, base_dir).name for e in listed]
+    effects = [_rebase_effect(e, base_dir, out_dir) for e in listed]
     for t in res.targets:
         v = float(res.values[t.label])
         if t.effect is None:
@@ -61,7 +66,7 @@ def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
             continue
         for i, e in enumerate(effects):
             name = next(iter(e)) if isinstance(e, dict) else e
-            if name == t.effect or (isinstance(name, str) and name.endswith(f":{t.effect}")):
+            if names[i] == t.effect:
                 vals = dict(e[name] or {}) if isinstance(e, dict) else {}
                 vals[t.key] = v
                 effects[i] = {name: vals}

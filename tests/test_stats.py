@@ -1,0 +1,118 @@
+"""Calibration of rig.analysis.stats on correlated noise like 2 kHz residuals (issue 13):
+the held-out improvement test holds its false-alarm rate on noise alone and the HAC
+(Newey-West) intervals of a least-squares fit cover the truth at their nominal rate, where
+independent-noise intervals do not."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+from rig.analysis import diagnose as dg
+from rig.analysis import fit as ft
+from rig.analysis import stats
+
+N, SEG = 600, [300, 300]  # two trials' channels of 0.15 s at 2 kHz
+
+
+def coloured(rng: np.random.Generator, n: int = N) -> np.ndarray:
+    """Noise through a resonant 2nd-order filter (ringing at ~100 Hz at 2 kHz) plus a slow
+    AR(1) part: strongly autocorrelated, like a sensor chain's residual."""
+    w = rng.standard_normal(n)
+    r, th = 0.97, 2 * math.pi * 100 / 2000
+    ring = lfilter([1.0], [1, -2 * r * math.cos(th), r * r], w)
+    slow = lfilter([1.0], [1, -0.95], rng.standard_normal(n))
+    return ring / ring.std() + 0.5 * slow / slow.std()
+
+
+def test_improvement_test_holds_its_level_on_noise_alone() -> None:
+    rng = np.random.default_rng(1)
+    t = np.arange(N) / 2000
+    alarms, reps = 0, 400
+    for _ in range(reps):
+        e = coloured(rng)
+        # a change fitted on other (training) noise: smooth, independent of e, small
+        delta = 0.05 * np.sin(2 * math.pi * 30 * t + rng.uniform(0, 6))
+        _, p = stats.improvement_test(e, e - delta, SEG)
+        alarms += p <= 0.05
+    assert alarms / reps <= 0.08, alarms / reps
+    # and it finds a real improvement of the same size against the same noise
+    found = 0
+    for _ in range(100):
+        e = coloured(rng)
+        miss = 1.0 * np.sin(2 * math.pi * 30 * t)
+        _, p = stats.improvement_test(e + miss, e, SEG)
+        found += p <= 0.05
+    assert found >= 80, found
+
+
+def test_hac_intervals_cover_where_independent_noise_ones_do_not() -> None:
+    rng = np.random.default_rng(2)
+    t = np.arange(N) / 2000
+    X = np.column_stack([np.sin(2 * math.pi * 20 * t), np.exp(-t / 0.05)])
+    truth = np.array([1.0, -0.5])
+    cover_hac, cover_iid = np.zeros(2), np.zeros(2)
+    reps = 300
+    for _ in range(reps):
+        y = X @ truth + 0.3 * coloured(rng)
+        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+        r = y - X @ beta
+        se_hac = np.sqrt(np.diag(stats.sandwich_cov(X, r, SEG)))
+        se_iid = np.sqrt(np.diag(np.linalg.inv(X.T @ X)) * (r @ r) / (N - 2))
+        cover_hac += np.abs(beta - truth) <= 1.96 * se_hac
+        cover_iid += np.abs(beta - truth) <= 1.96 * se_iid
+    assert np.all(cover_hac / reps >= 0.85), cover_hac / reps  # each parameter's interval
+    assert np.all(cover_iid / reps < 0.7), cover_iid / reps  # what the old errors looked like
+
+
+def test_values_print_and_round_to_their_uncertainty() -> None:
+    assert stats.fmt(63.4123, 0.2211, "Hz") == "63.41 +- 0.22 Hz"
+    assert stats.fmt(0.016912, 0.00201, "1") == "0.0169 +- 0.0020"
+    assert stats.fmt(19387.2, 3456.0, "N/m") == "19400 +- 3500 N/m"
+    assert "nan" not in stats.fmt(3e-13, math.nan, "s")
+    assert stats.fmt(math.nan, 1.0) == "not determined"
+    assert stats.round_to(0.12064, 0.0049) == 0.1206
+    assert stats.round_to(19387.2, 3456.0) == 19400.0
+
+
+def _cand(name: str, resid: np.ndarray, significant: bool = True) -> dg.Candidate:
+    base = 1.0
+    rem = 1 - float(np.mean(resid ** 2)) / base
+    return dg.Candidate(name, "", {}, {}, {}, rem, {}, 10.0, significant, test_resid=resid)
+
+
+def test_a_ranking_that_changes_across_trials_or_windows_is_warned_about() -> None:
+    n = 40
+    data = ft.Data([], "force", None, [["hammer_angle"], ["hammer_angle"]],
+                   [np.arange(n) / 2000] * 2, [], [], [], [np.ones(n, bool)] * 2)
+    base = np.ones(2 * n)
+    # the string explains trial 0 entirely, the back check half of both: trials disagree
+    string = np.r_[np.zeros(n), np.ones(n)]
+    check = np.full(2 * n, math.sqrt(0.45))
+    notes = dg.stability_notes([_cand("compliant_string", string),
+                                _cand("backcheck_law", check)], base, data)
+    assert len(notes) == 1 and "trial 0: compliant_string" in notes[0] \
+        and "trial 1: backcheck_law" in notes[0], notes
+    # one effect best everywhere: no warning
+    assert dg.stability_notes([_cand("compliant_string", 0.1 * base),
+                               _cand("backcheck_law", check)], base, data) == []
+
+
+def test_an_effect_whose_own_parameters_are_off_is_not_named() -> None:
+    c = dg.Candidate("key_encoder_misread", "", {"key_encoder_misread.sensitivity": 0.55},
+                     {"key_encoder_misread.sensitivity": 4.6}, {}, 0.5, {}, 10.0, False,
+                     p_value=1e-6, train_gain=0.4)
+    from rig.model.effects import BUILTIN
+
+    c.off_z = dg._off_z([BUILTIN["key_encoder_misread"]], c.values, c.sigma)
+    dg.judge(c, 0.01, 0.2, 3.0, 1.96)
+    assert not c.significant and "off values" in c.why_not
+    c.sigma["key_encoder_misread.sensitivity"] = 0.1
+    c.off_z = dg._off_z([BUILTIN["key_encoder_misread"]], c.values, c.sigma)
+    dg.judge(c, 0.01, 0.2, 3.0, 1.96)
+    assert c.significant
+    # worse than nothing reads "worse", never a negative percentage
+    c.removal = -13.047
+    assert "makes the held-out error worse" in c.describe() and "-1304" not in c.describe()
