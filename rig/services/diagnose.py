@@ -45,13 +45,18 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
 
 def winner_model(diag: dg.Diagnosis, base: ActionModel, rate: float,
                  extra: Sequence[type[Effect]] = ()) -> ActionModel | None:
-    """The base model with the diagnosis's winning effect at its fitted values (None without
-    a significant winner)."""
-    best = diag.best
-    if best is None:
+    """The base model with the diagnosis's chosen set of effects at their jointly fitted
+    values (None when nothing was chosen)."""
+    final = diag.final
+    if final is None:
         return None
     classes = {**BUILTIN, **{c.name: c for c in extra}}
-    return ft.rebuild(base, [classes[best.name](**best.values)], rate=rate)
+    effects = []
+    for name in diag.chosen_names:
+        pre = name + "."
+        values = {k[len(pre):]: v for k, v in final.values.items() if k.startswith(pre)}
+        effects.append(classes[name](**values))
+    return ft.rebuild(base, effects, rate=rate)
 
 
 def write_report(diag: dg.Diagnosis, model: ActionModel, model_file: Path | None, label: str,
@@ -64,9 +69,9 @@ def write_report(diag: dg.Diagnosis, model: ActionModel, model_file: Path | None
     models: list[tuple[str, ActionModel]] = [(label, base)]
     files: list[str | None] = [str(model_file) if model_file is not None else None]
     win = winner_model(diag, model, rate, extra)
-    if win is not None and diag.best is not None:
-        models.append((f"{label} + {diag.best.name}", win))
-        files.append("(rig diagnose: the winner at its fitted values)")
+    if win is not None:
+        models.append((f"{label} + {' + '.join(diag.chosen_names)}", win))
+        files.append("(rig diagnose: the chosen effects at their jointly fitted values)")
     comps = [diag.comparison if len(models) == 1 and i == 0 else
              cp.compare(m, models, input, duration, channels) for i, m in enumerate(meas)]
     held = list(range(1, len(meas), 2)) if len(meas) > 1 else []
