@@ -103,8 +103,7 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
     trial its channels with value ranges and its events in time order."""
     import numpy as np
 
-    from rig import runfile
-    from rig.analysis import plots as pl
+    from rig import display, runfile
 
     try:
         r = runfile.read(run)
@@ -146,7 +145,7 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
                    f"ms, max {late.max() * 1e3:.3f} ms, missed "
                    f"{int(np.nansum(missed)) if missed is not None else 0}")
         for name, data in tr.channels.items():
-            k, u = pl.scale(tr.units.get(name, ""))
+            k, u = display.scale(tr.units.get(name, ""))
             arr = np.asarray(data, float)
             rng = (f"{np.nanmin(arr) * k:.5g} .. {np.nanmax(arr) * k:.5g} {u}"
                    if arr.size and np.isfinite(arr).any() else "no finite value")

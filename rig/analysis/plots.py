@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-DISPLAY = {"rad": (1e3, "mrad"), "m": (1e3, "mm"), "m/m": (1e6, "microstrain"),
-           "N": (1.0, "N"), "m/s": (1.0, "m/s"), "rad/s": (1.0, "rad/s"), "s": (1e3, "ms")}
+from rig.display import DISPLAY, scale  # noqa: F401 (re-exported for the report)
+
 PHASE_COLOURS = ("#eeeeee", "#d6e4f5", "#fbe0cc", "#dcefd2", "#fff0bf", "#e7cff4", "#d2f0f0")
 MODEL_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2")
 # the channels a piano maker looks at first; a page shows at most MAX_CHANNELS of them
@@ -30,11 +30,6 @@ EVENT_LABELS = {"key_starts": "key starts", "toe_meets_button": "toe meets butto
                 "check": "check", "key_bottom": "key bottom",
                 "key_release": "key release"}
 FONT = {"family": "sans-serif", "size": 13}
-
-
-def scale(units: str) -> tuple[float, str]:
-    """(factor, display units) for SI ``units``."""
-    return DISPLAY.get(units, (1.0, units))
 
 
 def pick_channels(names: Sequence[str], limit: int = MAX_CHANNELS) -> list[str]:

@@ -40,8 +40,6 @@ import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.optimize import brentq
 
 from rig.model.effects import BUILTIN, Effect, EffectParameter, EffectState, Signature
 
@@ -70,6 +68,8 @@ def constant_speed_force(speed_mm_s: float, depth_mm: float, values: dict[str, f
     if not speed_mm_s > 0 or not depth_mm > 0:
         raise ValueError("speed_mm_s, depth_mm: expected positive numbers")
     v = values
+    from scipy.integrate import solve_ivp  # (lazy: rig simulate does not need scipy's ODEs)
+
     sol = solve_ivp(lambda t, y: [series_rate(speed_mm_s * t, speed_mm_s, y[0], v["a2"],
                                               v["a3"], v["b2"], v["b3"])],
                     (0.0, depth_mm / speed_mm_s), [0.0], method="LSODA", rtol=1e-10,
@@ -166,6 +166,8 @@ class Fingertip(Effect):
         # off the key: the free pulp's surface, where Eq. 3.13 gives no force
         if x1 == 0.0:
             return 0.0, 0.0, 0.0
+        from scipy.optimize import brentq  # (lazy: only a fingertip blow needs it)
+
         lo, hi = min(0.0, x1), max(0.0, x1)
         xf = brentq(lambda y: kelvin_force(y, y - x1, v["a1"], v["a2"], v["b1"], v["b2"]),
                     lo, hi, xtol=1e-12)
