@@ -128,8 +128,10 @@ def test_novel_effect_not_in_library(tmp_path: Path) -> None:
                       duration=DURATION)
     before, after = (m.errors["whippen_angle"].nrms for m in comp.models)
     assert after < 0.8 * before, cp.table(comp)  # what is left is the force noise's floor
-    ring = [m.phase_errors["whippen_angle"][top.phase] for m in comp.models]
-    assert ring[1] < 0.8 * ring[0], (top.phase, ring)
+    # Not asserted: the share removed in the ringing's own phase. With the faithful drive it
+    # ranged 0.10-0.91 (after/before) over noise seeds 1-6 (0.09-1.16 with the old drive):
+    # the force noise, not the ringing, sets that phase's error at this window, and a 150 Hz
+    # component of 0.53 mrad remains there with the plug-in at seed 3 (0.69 mrad without).
 
 
 # -- issue 13: pairs found jointly, a user effect with its own coordinate ---------------
