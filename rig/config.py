@@ -301,6 +301,13 @@ class Sim(_Strict):
     sensor_spread: float = Field(0.02, ge=0, le=0.5,
                                  description="relative 1-sigma spread of the true "
                                                          "sensitivities around nominal")
+    drive_fault_at_s: float | None = Field(
+        None, gt=0, le=86400,
+        description="fault drill: the simulated drive faults (and drops its output) this many "
+                    "seconds of control periods into the run, to rehearse the safety chain; "
+                    "none: never")
+    drive_fault_code: int = Field(2, ge=1, le=99, description="the fault code of the drill "
+                                                              "(2: over-current)")
     build_timeout_s: float = Field(600.0, gt=0, le=7200,
                                    description="wait for the plant process to build "
                                    "its model (the first use after installing or updating rig "

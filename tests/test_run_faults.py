@@ -26,12 +26,12 @@ PROFILE = ("name: long\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.3, to: 20}\n"
            "  - {hold: 10.0}\n  - {ramp: 0.3, to: 0}\n")
 
 
-def _rig(tmp: Path, **loop) -> Path:
+def _rig(tmp: Path, sim: dict | None = None, limits: dict | None = None, **loop) -> Path:
     cfg = {"name": "faults", "backend": "sim", "data_folder": str(tmp / "runs"),
            "drive": {"port": "sim", "poll_period_s": 0.01},
-           "sim": {"realtime": True, "effects": []},
+           "sim": {"realtime": True, "effects": [], **(sim or {})},
            "channels": {"strain_gauge": {"enabled": False}},
-           "loop": {"rest_s": 0.05, **loop},
+           "loop": {"rest_s": 0.05, **loop}, "limits": limits or {},
            # a plant starved by a loaded test machine must not end the run first
            "acquisition": {"buffer_s": 10.0}}
     path = tmp / "rig.yaml"
@@ -197,6 +197,14 @@ def test_sigkill_of_the_main_process_is_made_safe_by_the_supervisor(tmp_path: Pa
                                    reason="controller process", t_fault=t, within_s=0.5)
     assert proc.returncode == -signal.SIGKILL
     assert any(e.get("event") == "stop requested" for e in log)
+    # in the plant's own time (it simulates a period only once its demand is in) the first
+    # control period the dead loop did not write runs at 0 V, and is the last one simulated
+    zero = [e for e in log if "volts" in e][-1]
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        periods = f["trial_000/channels/sample"].size // 4  # 2 kHz samples per 500 Hz period
+    assert zero["volts"] == 0.0 and zero["tick"] == periods - 1, (zero, periods)
+    held = [e for e in log if "volts" in e and e["tick"] < zero["tick"]]
+    assert held[-1]["volts"] > 0.5, held[-3:]
 
 
 @pytest.mark.slow
@@ -234,6 +242,51 @@ def test_an_exception_in_the_loop_is_a_clean_abort_with_its_traceback(
         assert reason in str(f.attrs["status"])
         assert "Traceback" in f["metadata/abort_traceback"][()].decode()
     del t
+
+
+@pytest.mark.slow
+def test_a_drive_fault_mid_blow_aborts_safely(tmp_path: Path) -> None:
+    # the simulated drive's fault drill: it faults 0.6 s into the run (mid-blow) and drops
+    # its output; the loop's drive monitor sees it on its next poll
+    _rig(tmp_path, sim={"drive_fault_at_s": 0.6})
+    proc = _start(tmp_path)
+    _wait_pushing(tmp_path, proc, volts=0.2)
+    kids, shm = _snapshot(proc)
+    proc.wait(timeout=120)
+    log = read_drive_log(str(tmp_path / "drive.log"))
+    drill = [e for e in log if "drill" in e.get("event", "")]
+    assert len(drill) == 1, log[-8:]
+    before = [e for e in log if "volts" in e and e["t"] < drill[0]["t"]]
+    assert before[-1]["volts"] > 0.2, before[-3:]  # it faulted while pushing
+    _, out = _check_safe_and_clean(tmp_path, proc, kids, shm, tmp_path / "run.h5",
+                                   reason="drive fault", t_fault=drill[0]["t"])
+    assert proc.returncode == 1
+    assert out.strip().splitlines()[-1].startswith("ABORTED: drive fault"), out
+
+
+@pytest.mark.slow
+def test_a_late_loop_aborts_safely(tmp_path: Path) -> None:
+    # a controller that takes 5 ms of a 2 ms period from its 300th call: every cycle is late
+    (tmp_path / "slowcontrol.py").write_text(
+        "import time\n\nclass Slow:\n    n = 0\n    def reset(self):\n        pass\n"
+        "    def __call__(self, t, ff, measured):\n        self.n += 1\n"
+        "        if self.n >= 300:\n            time.sleep(0.005)\n        return ff\n")
+    _rig(tmp_path, controller="slowcontrol:Slow", limits={"max_late_cycles_in_a_row": 3})
+    proc = _start(tmp_path, env_extra={
+        "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])})
+    _wait_pushing(tmp_path, proc, volts=0.05)
+    kids, shm = _snapshot(proc)
+    proc.wait(timeout=120)
+    log = read_drive_log(str(tmp_path / "drive.log"))
+    t_late = [e["t"] for e in log if "volts" in e and e["volts"] > 0][0]
+    _, out = _check_safe_and_clean(tmp_path, proc, kids, shm, tmp_path / "run.h5",
+                                   reason="late cycles in a row", t_fault=t_late,
+                                   within_s=10.0)
+    assert proc.returncode == 1
+    assert out.strip().splitlines()[-1].startswith("ABORTED: "), out
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        missed = f["trial_000/commands/missed"][:]
+        assert missed[-5:].sum() > 0 or f["trial_000/commands/lateness"][-1] > 1e-3
 
 
 @pytest.mark.slow

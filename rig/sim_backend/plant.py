@@ -197,6 +197,8 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
             raise RuntimeError(f"card rows of {rig.width} columns for a buffer of {fifo.width}")
         link.set_ready()
         cycle = 0
+        drill = cfg.sim.drive_fault_at_s  # a fault drill: the drive faults at this cycle
+        fault_cycle = -1 if drill is None else max(1, round(drill * cfg.rates.control_hz))
         while True:
             log.state(cycle, state)
             volts = link.get(cycle)
@@ -213,6 +215,9 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
                 time.sleep(POLL_S)
                 continue
             idle = 0
+            if cycle == fault_cycle:  # as SimDrive.inject_fault: the output drops at once
+                state.fault = cfg.sim.drive_fault_code
+                log.event(cycle, f"drive fault {cfg.sim.drive_fault_code} (drill)")
             log.demand(cycle, volts, state)
             rows = rig.cycle(volts)
             fifo.write(rows)  # the card never waits: a slow reader overflows, loudly
