@@ -223,15 +223,22 @@ def test_sigkill_of_a_child_aborts(tmp_path: Path, child: str, reason: str) -> N
                                          ("os:getcwd", "AttributeError")])
 def test_an_exception_in_the_loop_is_a_clean_abort_with_its_traceback(
         tmp_path: Path, spec: str, reason: str) -> None:
+    # the user controller fails at its 400th call (0.8 s into the run: mid-blow)
     (tmp_path / "usercontrol.py").write_text(
         "class Divide:\n    n = 0\n    def reset(self):\n        pass\n"
         "    def __call__(self, t, ff, measured):\n        self.n += 1\n"
-        "        return ff if self.n < 100 else ff / 0\n")
+        "        return ff if self.n < 400 else ff / 0\n")
     _rig(tmp_path, controller=spec)
-    t = time.time()
     proc = _start(tmp_path, env_extra={
         "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])})
-    out, _ = proc.communicate(timeout=300)
+    if spec.startswith("usercontrol"):  # the run pushes before the fault: check the rest too
+        _wait_pushing(tmp_path, proc, volts=0.2)
+        kids, shm = _snapshot(proc)
+        t = time.time()
+        _, out = _check_safe_and_clean(tmp_path, proc, kids, shm, tmp_path / "run.h5",
+                                       reason=reason, t_fault=t, within_s=5.0)
+    else:  # refused at the first cycle
+        out, _ = proc.communicate(timeout=300)
     lines = out.strip().splitlines()
     assert proc.returncode == 1, out
     assert lines[-1].startswith("ABORTED: ") and reason in lines[-1], out
@@ -241,7 +248,6 @@ def test_an_exception_in_the_loop_is_a_clean_abort_with_its_traceback(
     with h5py.File(tmp_path / "run.h5", "r") as f:
         assert reason in str(f.attrs["status"])
         assert "Traceback" in f["metadata/abort_traceback"][()].decode()
-    del t
 
 
 @pytest.mark.slow
