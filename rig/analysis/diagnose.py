@@ -13,7 +13,8 @@ The best significant addition joins the set; the search stops when no
 addition is significant (or at ``max_effects``). An optional backward pass
 drops a chosen effect whose removal (with a joint refit of the rest) does not
 make the held-out error significantly worse. The last accepted joint fit is
-the final one: its values, HAC uncertainties and correlations are reported.
+the final one: its values, uncertainties (HAC plus the input force's noise,
+``fit.input_noise_cov``) and correlations are reported.
 ``single=True`` gives only the first round: each candidate alone against the
 model, ranked.
 
@@ -505,6 +506,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                       best.test_resid if best.test_resid is not None else state.test_resid,
                       {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
                       best.train_cost)
+    if chosen:
+        _add_input_noise(chosen[-1], base, by_name, train)
     if first:
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
@@ -521,6 +524,29 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single)
+
+
+def _add_input_noise(final: Candidate, base: ActionModel,
+                     by_name: Mapping[str, type[Effect]], train: ft.Data) -> None:
+    """Widen the final set's uncertainties (and correlations) by the input force's noise
+    (``fit.input_noise_cov`` on the training samples it was fitted on)."""
+    if not final.values:
+        return
+    kinds = [by_name[n] for n in final.effects or (final.name,)]
+    add = [_instance(final, cls) for cls in kinds]
+    labels = list(final.values)
+    targets = [ft.target(base, k, add) for k in labels]
+    extra = ft.input_noise_cov(base, add, targets, final.values, train)
+    if extra is None:
+        return
+    corr = np.eye(len(labels))
+    for (a, b), r in final.corr.items():
+        i, j = labels.index(a), labels.index(b)
+        corr[i, j] = corr[j, i] = r
+    sigma, new = ft.combine_uncertainty(labels, final.sigma, corr, extra)
+    final.sigma = sigma
+    final.corr = {(a, b): float(new[i, j]) for i, a in enumerate(labels)
+                  for j, b in enumerate(labels) if i < j}
 
 
 def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],

@@ -20,9 +20,9 @@ from __future__ import annotations
 import math
 import multiprocessing as mp
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -327,10 +327,12 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         add: Sequence[Effect | type[Effect]] = (), *, jobs: int | None = None,
         max_nfev: int = 40, diff_step: float = 0.02, scan: int = 0,
         scan_labels: Sequence[str] | None = None,
-        progress: Callable[[float, float, str], None] | None = None) -> FitResult:
+        progress: Callable[[float, float, str], None] | None = None,
+        input_noise_draws: int = 0) -> FitResult:
     """Fit the targets by least squares on ``data``'s masked samples (within bounds); with
     ``scan`` > 0 first scan ``scan`` points across the bounds of each target (or of those
-    in ``scan_labels``) one at a time for a better start."""
+    in ``scan_labels``) one at a time for a better start. With ``input_noise_draws`` > 1
+    the uncertainties include the input force's noise (``input_noise_cov``)."""
     extra = [a if isinstance(a, Effect) else a() for a in add]
     targets = [s if isinstance(s, Target) else target(base, s, extra) for s in specs]
     if not targets:
@@ -411,9 +413,99 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             pool.shutdown()
     values = values_of(sol.x)
     sigma, corr = _uncertainty(targets, values, sol.fun, sol.jac, data.segments())
+    if input_noise_draws > 1:
+        extra_cov = input_noise_cov(base, add, targets, values, data, draws=input_noise_draws,
+                                    diff_step=diff_step)
+        if extra_cov is not None:
+            sigma, corr = combine_uncertainty(labels, sigma, corr, extra_cov)
     return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
                      float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
                      str(sol.message), history, corr)
+
+
+INPUT_NOISE_DRAWS = 32  # noise draws of the input-noise covariance (input_noise_cov)
+
+
+def input_noise_sigma(meas: Measurement) -> float:
+    """Noise level (N, 1 sigma) of a trial's measured key force: the larger of the robust
+    second-difference estimate (``noise_sigma``) and the spread over the rest samples
+    (``Measurement.rest_mask``; seen only when there are at least 10)."""
+    f = np.asarray(meas.channels["force"], float)
+    sig = ms.noise_sigma(f)
+    rest = meas.rest_mask()
+    if rest.sum() >= 10:
+        sig = max(sig, float(np.std(f[rest], ddof=1)))
+    return sig if math.isfinite(sig) else 0.0
+
+
+def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
+                    targets: Sequence[Target], values: Mapping[str, float], data: Data, *,
+                    draws: int = INPUT_NOISE_DRAWS, seed: int = 0, diff_step: float = 0.02
+                    ) -> np.ndarray | None:
+    """Covariance (in the targets' own units) of the fitted values that the noise of the
+    measured input force causes: an errors-in-variables term the residual-based (HAC)
+    covariance misses, because the model is driven by the noisy force.
+
+    Linearized Monte Carlo: the Jacobian J of the residuals at ``values`` (forward
+    differences, as the fit's), then ``draws`` copies of the trials whose force channel
+    carries fresh white noise of each trial's level (``input_noise_sigma``; the model
+    smooths it as it smooths the measurement); each copy's change of the residuals maps to
+    a change of the values by the least-squares solution -pinv(J) dr. Returns their
+    covariance, or None when the input is not the measured force, a simulation failed,
+    or fewer than 2 draws are asked. Assumes white input noise; noise low-passed below the
+    model's smoothing (``measurement.SMOOTH_HZ``) is underestimated (docs/workflow.md)."""
+    p = len(targets)
+    if data.input != "force" or p == 0 or draws < 2:
+        return None
+    rate = data.measurements[0].rate
+    model = rebuild(base, add, dict(values), targets, rate)
+    r0 = data.residuals(data.simulate(model))
+    u0 = np.array([t.to_u(float(values[t.label])) for t in targets])
+    cols = []
+    for j, t in enumerate(targets):
+        lo, hi = t.u_bounds
+        h = diff_step * max(1.0, abs(u0[j]))
+        u = u0.copy()
+        u[j] = u0[j] + h if u0[j] + h <= hi else u0[j] - h
+        vals = {**values, **{tt.label: tt.from_u(float(x)) for tt, x in zip(targets, u,
+                                                                               strict=True)}}
+        r = data.residuals(data.simulate(rebuild(base, add, vals, targets, rate)))
+        cols.append((r - r0) / (u[j] - u0[j]))
+    J = np.column_stack(cols)
+    if not np.all(np.isfinite(J)) or np.any(r0 == FAILED_PENALTY):
+        return None
+    pinv = np.linalg.pinv(J)
+    rng = np.random.default_rng(seed)
+    levels = [input_noise_sigma(m) for m in data.measurements]
+    dth = []
+    for _ in range(draws):
+        noisy = [replace(m, channels={**m.channels, "force": np.asarray(
+            m.channels["force"], float) + rng.normal(0.0, s, np.shape(m.channels["force"]))})
+            for m, s in zip(data.measurements, levels, strict=True)]
+        dk = replace(data, measurements=noisy)
+        rk = dk.residuals(dk.simulate(model))
+        if np.any(rk == FAILED_PENALTY):
+            return None
+        dth.append(-(pinv @ (rk - r0)))
+    cov_u = np.atleast_2d(np.cov(np.array(dth), rowvar=False))
+    d = np.array([t.dv_du(float(values[t.label])) for t in targets])
+    return np.asarray(cov_u * np.outer(d, d), float)
+
+
+def combine_uncertainty(labels: Sequence[str], sigma: Mapping[str, float],
+                        corr: np.ndarray | None, extra_cov: np.ndarray
+                        ) -> tuple[dict[str, float], np.ndarray]:
+    """Add ``extra_cov`` (value units, in ``labels`` order) to the covariance given by
+    ``sigma`` and ``corr``; returns the new sigma and correlation matrix."""
+    s = np.array([sigma.get(k, math.nan) for k in labels], float)
+    s = np.where(np.isfinite(s), s, 0.0)
+    c = corr if corr is not None else np.eye(len(labels))
+    cov = c * np.outer(s, s) + extra_cov
+    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        new_corr = cov / np.outer(d, d)
+    new_corr = np.where(np.isfinite(new_corr), new_corr, 0.0)
+    return {k: float(v) for k, v in zip(labels, d, strict=True)}, new_corr
 
 
 def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndarray,

@@ -25,7 +25,8 @@ def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
     model = ActionModel.from_yaml(model_file)
     meas = [m for r in runs for m in ms.load(r)]
     data = ft.Data.build(meas, input, duration, channels)
-    res = ft.fit(model, data, params, jobs=jobs, max_nfev=max_nfev, progress=progress)
+    res = ft.fit(model, data, params, jobs=jobs, max_nfev=max_nfev, progress=progress,
+                 input_noise_draws=ft.INPUT_NOISE_DRAWS)
     if write is not None:
         write_model(model_file, res, write)
     return res
