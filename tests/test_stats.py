@@ -195,3 +195,35 @@ def test_fitted_values_scatter_within_their_stated_uncertainty() -> None:
           f"with the input noise {np.median(full):.3f}")
     assert np.median(hac) < 0.6 * scatter            # the residual-only sigma is too small
     assert 0.6 * scatter < np.median(full) < 2.5 * scatter
+
+
+def test_noise_model_test_holds_its_level_and_keeps_its_power_beside_another_misfit() -> None:
+    # held-out noise = white output noise + the model's response to the input's noise
+    # (coloured); the test is given that noise model: its level, and its power when the
+    # residual also holds a second, unexplained misfit (which the HAC test counts as noise)
+    rng = np.random.default_rng(2)
+    t = np.arange(N) / 2000
+    out_sigma = np.full(N, 0.3)
+
+    def draws(k: int) -> np.ndarray:
+        return np.array([0.5 * coloured(rng) for _ in range(k)])
+
+    alarms, reps = 0, 400
+    other = 2.0 * np.sin(2 * math.pi * 7 * t)  # another missing effect, fixed
+    for _ in range(reps):
+        noise = out_sigma * rng.standard_normal(N) + draws(1)[0]
+        delta = 0.05 * np.sin(2 * math.pi * 30 * t + rng.uniform(0, 6))  # fitted to noise
+        _, p = stats.noise_model_test(other + noise, other + noise - delta, out_sigma,
+                                      draws(32))
+        alarms += p <= 0.05
+    assert alarms / reps <= 0.08, alarms / reps
+    found_noise = found_hac = 0
+    for _ in range(100):
+        noise = out_sigma * rng.standard_normal(N) + draws(1)[0]
+        miss = 0.6 * np.sin(2 * math.pi * 30 * t)  # what the candidate explains
+        r0, r1 = other + miss + noise, other + noise
+        found_noise += stats.noise_model_test(r0, r1, out_sigma, draws(32))[1] <= 0.005
+        found_hac += stats.improvement_test(r0, r1, SEG)[1] <= 0.005
+    assert found_noise >= 80, found_noise
+    print(f"found at p <= 0.005: noise model {found_noise}, HAC {found_hac} of 100")
+    assert found_hac < found_noise, (found_hac, found_noise)

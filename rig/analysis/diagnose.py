@@ -23,12 +23,16 @@ A candidate counts as significant only when all hold:
   error the current model leaves (mean over channels of the mean square residual
   over the channel's range squared), and on some channel a held-out mean square
   of at least ``min_noise_gain`` times the channel's noise variance;
-- the held-out improvement passes a one-sided Diebold-Mariano-type test
-  (rig.analysis.stats.improvement_test: the mean difference of squared
-  residuals, its variance from a Newey-West long-run estimate, within each
-  trial's channel, of the part that varies with the held-out noise) at level
-  ``alpha`` divided by the number of candidates in the round (Bonferroni: the
-  whole round's false-alarm rate is at most ``alpha``);
+- the held-out improvement passes a one-sided test of the mean difference of
+  squared residuals at level ``alpha`` divided by the number of candidates in the
+  round (Bonferroni: the whole round's false-alarm rate is at most ``alpha``).
+  By default (``held_out_test="noise"``) its variance comes from a noise model
+  of the held-out trials (rig.analysis.stats.noise_model_test: white output noise
+  plus the model's simulated response to the input force's noise), so another
+  missing effect's misfit is not taken for noise; ``"hac"`` (and any input other
+  than the measured force) takes it from the residuals instead
+  (stats.improvement_test, Diebold-Mariano type, Newey-West within each trial's
+  channel);
 - a parameter that has an "off" value (EffectParameter.off) is not within
   ``z_off`` (1.96) standard errors of it for every such parameter: an effect
   whose own parameters are indistinguishable from "off" explains nothing. An
@@ -281,6 +285,9 @@ class State:
     test_resid: np.ndarray
     test_ms: dict[str, tuple[float, float]]
     train_cost: float
+    # how the input force's noise moves test_resid (draws x samples), for noise_model_test;
+    # None: the HAC test (improvement_test)
+    test_noise_draws: np.ndarray | None = None
 
 
 def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
@@ -336,7 +343,11 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     removal = 1 - e_cand / e_cur if e_cur > 0 else 0.0
     ch_rem = {c: (1 - cand[c][0] / cur[c][0]) if cur[c][0] > 0 else 0.0 for c in cur}
     gain = max(cur[c][1] - cand[c][1] for c in cur)
-    _, p = stats.improvement_test(state.test_resid, resid, test.segments())
+    if state.test_noise_draws is not None:
+        _, p = stats.noise_model_test(state.test_resid, resid, test.noise_vector(),
+                                      state.test_noise_draws)
+    else:
+        _, p = stats.improvement_test(state.test_resid, resid, test.segments())
     train_gain = 1 - train_cost / state.train_cost if state.train_cost > 0 else 0.0
     off_z = _off_z([cls], values, sigma)
     return Candidate(cls.name, cls.summary, values, sigma, units, removal, ch_rem, gain,
@@ -448,7 +459,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              jobs: int | None = None, max_nfev: int = 10, scan: int = 4, min_gain: float = 0.2,
              min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
              single: bool = False, max_effects: int = 3, alpha: float = 0.05,
-             z_off: float = 1.96, backward: bool = False,
+             z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
              progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses."""
@@ -456,6 +467,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
 
     if not measurements:
         raise ValueError("measurements: expected at least one trial")
+    if held_out_test not in ("noise", "hac"):
+        raise ValueError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
     wall0 = _time.perf_counter()
     data = ft.Data.build(measurements, input, duration, channels, align_s=align_s)
     train_m, test_m = ft.split_masks(data)
@@ -469,7 +482,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     base_test = test.channel_ms(base_preds)
     base_resid = test.residuals(base_preds)
     state = State([], base_resid, base_test,
-                  float(np.mean(train.residuals(train.simulate(base)) ** 2)))
+                  float(np.mean(train.residuals(train.simulate(base)) ** 2)),
+                  _noise_draws(base, test, held_out_test))
     classes = candidates_for(base, candidates, extra)
     implies = {cls.name: cls.implies for cls in classes}
     by_name = {cls.name: cls for cls in classes}
@@ -502,10 +516,13 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         cls_b = by_name[best.name]
         remaining = [c for c in remaining if c is not cls_b
                      and c.name not in cls_b.implies]
-        state = State([*( _instance(best, by_name[n]) for n in best.effects)],
+        now = [_instance(best, by_name[n]) for n in best.effects]
+        state = State(now,
                       best.test_resid if best.test_resid is not None else state.test_resid,
                       {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
-                      best.train_cost)
+                      best.train_cost,
+                      _noise_draws(ft.rebuild(base, now, rate=test.measurements[0].rate),
+                                   test, held_out_test) if remaining else None)
     if chosen:
         _add_input_noise(chosen[-1], base, by_name, train)
     if first:
@@ -524,6 +541,15 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single)
+
+
+def _noise_draws(model: ActionModel, test: ft.Data, how: str) -> np.ndarray | None:
+    """The held-out residual's response to the input force's noise under ``model`` (the
+    noise-model test's input part), or None for the HAC test (``how`` 'hac', or an input
+    that is not the measured force)."""
+    if how != "noise":
+        return None
+    return ft.input_noise_responses(model, test)
 
 
 def _add_input_noise(final: Candidate, base: ActionModel,

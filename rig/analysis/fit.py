@@ -253,6 +253,14 @@ class Data:
                 parts.append(np.where(np.isfinite(r), r, FAILED_PENALTY))
         return np.concatenate(parts) if parts else np.zeros(0)
 
+    def noise_vector(self) -> np.ndarray:
+        """Each residual's output-noise level (channel noise / range), in ``residuals``'s
+        order."""
+        parts = [np.full(int(self.masks[i].sum()), self.noise[i][c] / self.ranges[i][c])
+                 for i in range(len(self.measurements)) if self.masks[i].any()
+                 for c in self.channels[i]]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
     def segments(self) -> list[int]:
         """Lengths of the contiguous parts of ``residuals`` (one per trial and channel)."""
         return [int(m.sum()) for i, m in enumerate(self.masks) if m.any()
@@ -438,6 +446,34 @@ def input_noise_sigma(meas: Measurement) -> float:
     return sig if math.isfinite(sig) else 0.0
 
 
+def input_noise_responses(model: ActionModel, data: Data, *, draws: int = INPUT_NOISE_DRAWS,
+                          seed: int = 0, r0: np.ndarray | None = None) -> np.ndarray | None:
+    """How the input force's noise moves ``model``'s residuals on ``data``: a (draws, n)
+    array, each row the change of ``data.residuals`` when every trial's force channel
+    carries fresh white noise of its level (``input_noise_sigma``; the model smooths it
+    as it smooths the measurement). None when the input is not the measured force or a
+    simulation failed."""
+    if data.input != "force" or draws < 2:
+        return None
+    if r0 is None:
+        r0 = data.residuals(data.simulate(model))
+    if np.any(r0 == FAILED_PENALTY):
+        return None
+    rng = np.random.default_rng(seed)
+    levels = [input_noise_sigma(m) for m in data.measurements]
+    out = np.empty((draws, r0.size))
+    for k in range(draws):
+        noisy = [replace(m, channels={**m.channels, "force": np.asarray(
+            m.channels["force"], float) + rng.normal(0.0, s, np.shape(m.channels["force"]))})
+            for m, s in zip(data.measurements, levels, strict=True)]
+        dk = replace(data, measurements=noisy)
+        rk = dk.residuals(dk.simulate(model))
+        if rk.shape != r0.shape or np.any(rk == FAILED_PENALTY):
+            return None
+        out[k] = rk - r0
+    return out
+
+
 def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
                     targets: Sequence[Target], values: Mapping[str, float], data: Data, *,
                     draws: int = INPUT_NOISE_DRAWS, seed: int = 0, diff_step: float = 0.02
@@ -474,20 +510,11 @@ def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
     J = np.column_stack(cols)
     if not np.all(np.isfinite(J)) or np.any(r0 == FAILED_PENALTY):
         return None
-    pinv = np.linalg.pinv(J)
-    rng = np.random.default_rng(seed)
-    levels = [input_noise_sigma(m) for m in data.measurements]
-    dth = []
-    for _ in range(draws):
-        noisy = [replace(m, channels={**m.channels, "force": np.asarray(
-            m.channels["force"], float) + rng.normal(0.0, s, np.shape(m.channels["force"]))})
-            for m, s in zip(data.measurements, levels, strict=True)]
-        dk = replace(data, measurements=noisy)
-        rk = dk.residuals(dk.simulate(model))
-        if np.any(rk == FAILED_PENALTY):
-            return None
-        dth.append(-(pinv @ (rk - r0)))
-    cov_u = np.atleast_2d(np.cov(np.array(dth), rowvar=False))
+    resp = input_noise_responses(model, data, draws=draws, seed=seed, r0=r0)
+    if resp is None:
+        return None
+    dth = -(resp @ np.linalg.pinv(J).T)
+    cov_u = np.atleast_2d(np.cov(dth, rowvar=False))
     d = np.array([t.dv_du(float(values[t.label])) for t in targets])
     return np.asarray(cov_u * np.outer(d, d), float)
 

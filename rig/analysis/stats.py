@@ -84,6 +84,34 @@ def improvement_test(r0: np.ndarray, r1: np.ndarray, segments: Sequence[int]
     return mean_test(r0 ** 2 - r1 ** 2, segments, 2 * r1 * delta)
 
 
+def noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
+                     input_responses: np.ndarray | None = None) -> tuple[float, float]:
+    """One-sided test that residuals ``r1`` are smaller in mean square than ``r0`` on the
+    same held-out samples, with the variance from a noise model rather than from the
+    residuals: (z, p).
+
+    ``r0^2 - r1^2 = delta^2 + 2 n delta + (fixed)`` with ``delta = r0 - r1`` fixed by the
+    training data and ``n`` the held-out data's noise: white output noise of level
+    ``out_sigma`` per sample, plus the model's response to the input force's noise, given
+    as draws (rows of ``input_responses``, e.g. ``fit.input_noise_responses``). What the
+    residuals hold besides noise -- another missing effect's misfit -- is fixed, not noise:
+    the HAC test (``improvement_test``) counts it as noise and loses power to it."""
+    r0, r1 = np.asarray(r0, float), np.asarray(r1, float)
+    if r0.shape != r1.shape or r0.size < 4:
+        return 0.0, 1.0
+    delta = r0 - r1
+    n = r0.size
+    stat = float(np.mean(r0 ** 2 - r1 ** 2))
+    var = 4.0 * float(np.sum(delta ** 2 * np.asarray(out_sigma, float) ** 2)) / n ** 2
+    if input_responses is not None and len(input_responses) >= 2:
+        proj = 2.0 * (np.asarray(input_responses, float) @ delta) / n
+        var += float(np.var(proj, ddof=1))
+    if not var > 0:
+        return 0.0, 1.0
+    z = stat / math.sqrt(var)
+    return z, 0.5 * math.erfc(z / math.sqrt(2))
+
+
 def mean_test(d: np.ndarray, segments: Sequence[int], noise: np.ndarray | None = None
               ) -> tuple[float, float]:
     """One-sided test that the mean of ``d`` is > 0 with a HAC variance of the mean of
