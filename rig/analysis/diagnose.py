@@ -460,6 +460,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
              single: bool = False, max_effects: int = 3, alpha: float = 0.05,
              z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
+             final_nfev: int = 40,
              progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses."""
@@ -512,6 +513,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             if best is not None:
                 chosen.append(best)
             break
+        _converge(best, base, by_name, train, test, final_nfev)
         chosen.append(best)
         cls_b = by_name[best.name]
         remaining = [c for c in remaining if c is not cls_b
@@ -541,6 +543,36 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single)
+
+
+def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
+              train: ft.Data, test: ft.Data, max_nfev: int) -> None:
+    """Refit an accepted set to convergence (``max_nfev``; a round's candidates stop at
+    ``diagnose``'s ``max_nfev``, enough to rank but not to leave only noise) from its
+    values, and rescore it on the held-out data, in place: the next round tests its
+    additions against this model, so that an under-converged set does not leave a misfit
+    a further effect could take credit for."""
+    if not c.values or max_nfev <= 0:
+        return
+    add = [_instance(c, by_name[n]) for n in c.effects or (c.name,)]
+    specs = list(c.values)
+    try:
+        res = ft.fit(base, train, [ft.target(base, k, add) for k in specs], add, jobs=1,
+                     max_nfev=max_nfev)
+        if not res.cost < c.train_cost:
+            return
+        model = ft.rebuild(base, add, res.values, res.targets, test.measurements[0].rate)
+        preds = test.simulate(model)
+        cand = test.channel_ms(preds)
+        resid = test.residuals(preds)
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return
+    c.values, c.sigma = dict(res.values), dict(res.sigma)
+    c.corr = ({(a.label, b.label): float(res.corr[i, j]) for i, a in enumerate(res.targets)
+               for j, b in enumerate(res.targets) if i < j} if res.corr is not None else {})
+    c.train_cost, c.test_resid, c.nfev = res.cost, resid, c.nfev + res.nfev
+    c.test_error = {k: cand[k][0] for k in c.test_error if k in cand}
+    c.test_noise = {k: cand[k][1] for k in c.test_noise if k in cand}
 
 
 def _noise_draws(model: ActionModel, test: ft.Data, how: str) -> np.ndarray | None:
