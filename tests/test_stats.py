@@ -227,3 +227,21 @@ def test_noise_model_test_holds_its_level_and_keeps_its_power_beside_another_mis
     assert found_noise >= 80, found_noise
     print(f"found at p <= 0.005: noise model {found_noise}, HAC {found_hac} of 100")
     assert found_hac < found_noise, (found_hac, found_noise)
+
+
+def test_default_window_ends_when_the_action_is_back_at_rest_after_the_release() -> None:
+    from rig.analysis import measurement as ms
+
+    rate = 2000.0
+    t = np.arange(0, 2.0, 1 / rate)
+    force = np.interp(t, [0, 0.02, 0.1, 0.3, 0.34, 2.0], [0, 0, 30, 30, 0, 0])
+    force = force + 0.2 * np.random.default_rng(0).standard_normal(t.size)
+    hammer = np.interp(t, [0, 0.05, 0.09, 0.35, 0.45, 2.0], [0, 0, 1.0, 0.8, 0.0, 0.0])
+    m = ms.Measurement(t, {"time": t, "force": force, "hammer_angle": hammer},
+                       {"force": "N", "hammer_angle": "rad"})
+    end, why = ms.blow_window(m)
+    assert end == pytest.approx(0.45 - ms.BACK_AT_REST * 0.1 + ms.WINDOW_MARGIN_S, abs=3e-3)
+    assert "back at rest" in why and "0.33" in why  # released at ~0.33 s
+    held = ms.Measurement(t, {"time": t, "force": np.interp(t, [0, 0.1, 2.0], [0, 30, 30]),
+                              "hammer_angle": hammer}, {"force": "N", "hammer_angle": "rad"})
+    assert ms.blow_window(held)[0] == pytest.approx(t[-1])  # never released: whole trial

@@ -58,6 +58,7 @@ import yaml
 
 from rig.analysis import compare as cp
 from rig.analysis import fit as ft
+from rig.analysis import measurement as ms
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis.measurement import Measurement
@@ -471,13 +472,23 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     if held_out_test not in ("noise", "hac"):
         raise ValueError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
     wall0 = _time.perf_counter()
-    data = ft.Data.build(measurements, input, duration, channels, align_s=align_s)
+    notes: list[str] = []
+    windows: list[float | None] | None = None
+    if duration is None:  # each trial's blow, bounded by its events
+        bounds = [ms.blow_window(m) for m in measurements]
+        windows = [b[0] for b in bounds]
+        notes.append("window: " + "; ".join(
+            f"{m.label} 0-{w:.3f} s ({why})" for m, (w, why) in zip(measurements, bounds,
+                                                                     strict=True))
+            + " (--duration S for the first S s of every trial)")
+    data = ft.Data.build(measurements, input, duration, channels, align_s=align_s,
+                         windows=windows)
     train_m, test_m = ft.split_masks(data)
     train, test = data.subset(train_m), data.subset(test_m)
     split = (f"{len(measurements)} trials: fit on even, score on odd" if len(measurements) > 1
              else "one trial: fit on even 2 ms blocks, score on odd ones")
     base = ft.rebuild(base, rate=measurements[0].rate)
-    comp = cp.compare(measurements[0], [(label, base)], input, duration, channels)
+    comp = cp.compare(measurements[0], [(label, base)], input, data.window(0), channels)
     sigs = sg.signatures(comp, comp.models[0], align_s)
     base_preds = test.simulate(base)
     base_test = test.channel_ms(base_preds)
@@ -490,7 +501,6 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     by_name = {cls.name: cls for cls in classes}
     ctx = {"base": base, "train": train, "test": test, "max_nfev": max_nfev, "scan": scan,
            "min_gain": min_gain, "min_noise_gain": min_noise_gain}
-    notes: list[str] = []
     py_note = ft.python_integrator_note(base, classes)
     if py_note:
         notes.append(py_note)

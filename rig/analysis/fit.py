@@ -183,14 +183,21 @@ class Data:
     noise: list[dict[str, float]]
     masks: list[np.ndarray]
     align_s: float = ALIGN_S
+    windows: list[float | None] | None = None  # per-trial durations (None: ``duration``)
 
     @classmethod
     def build(cls, measurements: Sequence[Measurement], input: str = "force",
               duration: float | None = None, channels: Sequence[str] | None = None,
-              masks: Sequence[np.ndarray] | None = None, align_s: float = 0.0) -> Data:
+              masks: Sequence[np.ndarray] | None = None, align_s: float = 0.0,
+              windows: Sequence[float | None] | None = None) -> Data:
+        """Prepared trials; each trial's window is ``windows[i]`` when given, else
+        ``duration`` (None: the whole trial)."""
         times, names, meas, ranges, noise = [], [], [], [], []
-        for m in measurements:
-            t, n, d = cp.prepare(m, input, duration, channels)
+        wins = list(windows) if windows is not None else [duration] * len(measurements)
+        if len(wins) != len(measurements):
+            raise ValueError(f"windows: expected {len(measurements)}, got {len(wins)}")
+        for m, w in zip(measurements, wins, strict=True):
+            t, n, d = cp.prepare(m, input, w, channels)
             times.append(t)
             names.append(n)
             meas.append(d)
@@ -198,11 +205,16 @@ class Data:
             noise.append({c: ms.noise_sigma(d[c]) for c in n})
         mk = list(masks) if masks is not None else [np.ones(t.shape, bool) for t in times]
         return cls(list(measurements), input, duration, names, times, meas, ranges, noise, mk,
-                   align_s)
+                   align_s, None if windows is None else wins)
 
     def subset(self, masks: Sequence[np.ndarray]) -> Data:
         return Data(self.measurements, self.input, self.duration, self.channels, self.time,
-                    self.measured, self.ranges, self.noise, list(masks), self.align_s)
+                    self.measured, self.ranges, self.noise, list(masks), self.align_s,
+                    self.windows)
+
+    def window(self, i: int) -> float | None:
+        """Trial ``i``'s analysis duration (s; None: the whole trial)."""
+        return self.windows[i] if self.windows is not None else self.duration
 
     def simulate(self, model: ActionModel) -> list[dict[str, np.ndarray]]:
         """Each trial's predicted channels (rest removed), NaN where the simulation failed."""
@@ -211,7 +223,7 @@ class Data:
             if not self.masks[i].any():
                 out.append({})
                 continue
-            res = ms.simulate(model, m, self.input, self.duration)
+            res = ms.simulate(model, m, self.input, self.window(i))
             rel = {c: m.relative(c) for c in self.channels[i]}
             out.append(cp.predicted_channels(res, self.time[i], self.channels[i], rel))
         return out

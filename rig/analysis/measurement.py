@@ -221,6 +221,58 @@ def _simulate_motion(model: ActionModel, meas: Measurement, duration: float,
     return step.result()
 
 
+BACK_AT_REST = 0.02   # share of a channel's range: the action is back at rest within it
+WINDOW_MARGIN_S = 0.02
+
+
+def blow_window(meas: Measurement) -> tuple[float, str]:
+    """The default analysis window of one trial, bounded by its events: from t = 0 to
+    ``WINDOW_MARGIN_S`` after the action is back at rest following the key's release.
+
+    Key release: the first sample after the (smoothed) key force's peak at which the force
+    has fallen below 5 % of its rise above rest. Back at rest: from then on, every angle
+    or displacement channel stays within ``BACK_AT_REST`` of its range from its rest
+    value. Returns (end time in s, a phrase saying what bounded it); the trial's end when
+    the force never falls back or the action does not come to rest before it."""
+    t = meas.time
+    end = float(t[-1])
+    if "force" not in meas.channels or t.size < 16:
+        return end, "the trial's end (no force channel)"
+    f = smoothed_force(meas)
+    rest = meas.rest_mask()
+    f0 = float(np.median(f[rest])) if rest.any() else 0.0
+    ipk = int(np.argmax(f))
+    rise = float(f[ipk]) - f0
+    if not rise > 0:
+        return end, "the trial's end (the key force never rises)"
+    down = np.nonzero(f[ipk:] < f0 + 0.05 * rise)[0]
+    if down.size == 0:
+        return end, "the trial's end (the key is not released)"
+    i_rel = ipk + int(down[0])
+    settled = np.zeros(t.size, bool)
+    settled[i_rel:] = True
+    for c in meas.signal_channels():
+        if not meas.relative(c):
+            continue
+        x = np.asarray(meas.channels[c], float)
+        span = float(np.ptp(x[t >= 0])) if np.any(t >= 0) else 0.0
+        if not span > 0:
+            continue
+        x0 = float(np.median(x[rest])) if rest.any() else float(x[0])
+        away = np.abs(x - x0) > BACK_AT_REST * span
+        # settled from i onwards: no sample after i is away
+        last_away = np.nonzero(away)[0]
+        if last_away.size:
+            settled[: int(last_away[-1]) + 1] = False
+    idx = np.nonzero(settled)[0]
+    if idx.size == 0:
+        return end, "the trial's end (the action is not back at rest before it)"
+    t_rest = float(t[idx[0]])
+    return (min(end, t_rest + WINDOW_MARGIN_S),
+            f"{WINDOW_MARGIN_S * 1e3:.0f} ms after the action is back at rest (key released "
+            f"at {t[i_rel]:.3f} s)")
+
+
 def noise_sigma(x: np.ndarray) -> float:
     """Noise standard deviation of a sampled signal: robust second differences, floored at
     the quantization step's sqrt(1/12) when the signal is quantized."""
