@@ -612,6 +612,8 @@ def diagnose_cmd(
     write: Annotated[Path | None, typer.Option(
         help="save the model with the chosen effects and their fitted values here")] = None,
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
 ) -> None:
     """Where the model fails, and which library effect removes the residual."""
     from rig.services import diagnose as svc
@@ -623,7 +625,7 @@ def diagnose_cmd(
             diag = svc.diagnose(run, model, input=input, duration=duration, trials=trial,
                                 channels=channel, candidates=candidate, extra=extra or (),
                                 jobs=jobs, single=single, backward=backward, write=write,
-                                report_path=report,
+                                report_path=report, scheduler=scheduler,
                                 progress=_analysis_progress(bar, task))
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None
@@ -652,6 +654,8 @@ def fit_cmd(
     jobs: Annotated[int | None, typer.Option(help="processes (default: one per core)")] = None,
     max_nfev: Annotated[int, typer.Option(help="least-squares iterations at most")] = 40,
     write: Annotated[Path | None, typer.Option(help="save the fitted model YAML here")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
 ) -> None:
     """Fit model or effect parameters to one or many runs (scipy least squares)."""
     from rig.services import fit as svc
@@ -661,7 +665,7 @@ def fit_cmd(
         with _bar() as bar:
             task = bar.add_task("fitting", total=None, sim="")
             res = svc.fit(runs, model, param, input=input, duration=duration, channels=channel,
-                          jobs=jobs, max_nfev=max_nfev, write=write,
+                          jobs=jobs, max_nfev=max_nfev, write=write, scheduler=scheduler,
                           progress=_analysis_progress(bar, task))
     except (ValueError, RuntimeError) as exc:
         raise _fail(exc) from None

@@ -353,3 +353,66 @@ def test_interrupted_cli_sweep_keeps_its_blows_and_resumes(tmp_path):
     assert f"400 blows: {400 - kept} computed, {kept} already in" in r.stdout
     with h5py.File(out, "r") as f:
         assert f.attrs["status"] == "complete" and f["table/done"][:].all()
+
+
+def test_diagnose_and_fit_on_the_cluster_equal_local_processes(cluster, tmp_path):
+    # issue 17: the same executor seam runs diagnose's candidate fits and fit's Jacobian
+    # columns on a real 2-worker cluster; the results are those of local processes (the
+    # worker-lost retry is the seam's, tested on the sweep above)
+    from typer.testing import CliRunner
+
+    from rig import profiles
+    from rig.analysis import diagnose as dg
+    from rig.analysis import fit as ft
+    from rig.analysis import measurement as ms
+    from rig.analysis import synth
+    from rig.cli import app
+    from rig.model.action import ActionModel
+
+    lc, client = cluster
+    run = tmp_path / "run.h5"
+    truth = ActionModel(effects=[{"compliant_string": {"stiffness": 2e4}}])
+    synth.synth(truth, [profiles.load(PROFILE)], run, seed=5, duration=0.08, trials=2)
+    meas = ms.load(run)
+    kw = {"duration": 0.08, "candidates": ["compliant_string", "load_cell_filter",
+                                           "felt_hysteresis"], "max_effects": 2}
+    with LocalExecutor(2) as lx:
+        a = dg.diagnose(ActionModel(), meas, executor=lx, **kw)
+    with DaskExecutor(client=client) as dx:
+        b = dg.diagnose(ActionModel(), meas, executor=dx, **kw)
+    assert a.chosen_names == b.chosen_names == ["compliant_string"], a.report_lines()
+    assert a.final is not None and b.final is not None
+    for k, v in a.final.values.items():
+        assert b.final.values[k] == pytest.approx(v, rel=1e-12)
+        assert b.final.sigma[k] == pytest.approx(a.final.sigma[k], rel=1e-9)
+    assert [c.removal for c in a.candidates] == pytest.approx([c.removal for c in
+                                                               b.candidates], rel=1e-12)
+
+    data = ft.Data.build(meas, duration=0.08)
+    model = ActionModel(effects=["compliant_string"])
+    specs = ["compliant_string.stiffness", "contacts.12.D"]
+    with LocalExecutor(2) as lx:
+        fa = ft.fit(model, data, specs, executor=lx, max_nfev=3)
+    with DaskExecutor(client=client) as dx:
+        fb = ft.fit(model, data, specs, executor=dx, max_nfev=3)
+    assert fa.nfev == fb.nfev
+    for k, v in fa.values.items():
+        assert fb.values[k] == pytest.approx(v, rel=1e-12)
+        assert fb.sigma[k] == pytest.approx(fa.sigma[k], rel=1e-12)
+
+    # the commands take the cluster's address
+    r = CliRunner().invoke(app, ["diagnose", str(run), "--candidate", "compliant_string",
+                                 "--duration", "0.08", "--scheduler", lc.scheduler_address])
+    assert r.exit_code == 0, r.output
+    assert "missing effect: compliant_string" in r.output
+    r = CliRunner().invoke(app, ["fit", str(run), "--param", "compliant_string.stiffness",
+                                 "--model", str(_string_model(tmp_path)), "--duration", "0.08",
+                                 "--max-nfev", "3", "--scheduler", lc.scheduler_address])
+    assert r.exit_code == 0, r.output
+    assert "compliant_string.stiffness = " in r.output
+
+
+def _string_model(tmp: Path) -> Path:
+    path = tmp / "string.yaml"
+    path.write_text("effects:\n  - compliant_string\n")
+    return path

@@ -48,10 +48,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -64,6 +63,9 @@ from rig.analysis import stats
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect
+
+if TYPE_CHECKING:
+    from rig.executor import Executor
 
 
 def _unit(u: str) -> str:
@@ -256,9 +258,6 @@ class Diagnosis:
         return lines + self.notes
 
 
-_CTX: dict[str, Any] = {}
-
-
 def candidates_for(base: ActionModel, names: Sequence[str] | None = None,
                    extra: Sequence[type[Effect]] = ()) -> list[type[Effect]]:
     """Library effects not in the model (or the named ones), plus extra classes."""
@@ -378,40 +377,28 @@ def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
     c.why_not = next((why for ok, why in checks if not ok), "")
 
 
-def _worker(i: int) -> Candidate:
-    c = _CTX["diagnose"]
-    return evaluate_candidate(c["classes"][i], c["base"], c["train"], c["test"],
-                              c["state"], c["max_nfev"], c["min_gain"],
-                              c["min_noise_gain"], c["scan"])
+def _evaluate(ctx: Mapping[str, Any], i: int) -> Candidate:
+    """Candidate ``i`` of a round (a module-level task for the executor seam)."""
+    return evaluate_candidate(ctx["classes"][i], ctx["base"], ctx["train"], ctx["test"],
+                              ctx["state"], ctx["max_nfev"], ctx["min_gain"],
+                              ctx["min_noise_gain"], ctx["scan"])
 
 
-def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], jobs: int | None,
+def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], executor: Executor,
            progress: Callable[[float, float, str], None] | None, what: str
            ) -> list[Candidate]:
+    """Every candidate of a round, fitted on ``executor`` (the round's models and data
+    travel once per worker), in the classes' order."""
     total = len(classes)
     if progress:
         progress(0, total, what)
-    out: list[Candidate] = []
-    pool = ft.make_pool(min(jobs, total) if jobs is not None else min(total, 64)) \
-        if total > 1 else None
-    _CTX["diagnose"] = {**ctx, "classes": list(classes)}
-    try:
-        if pool is None:
-            for i, cls in enumerate(classes):
-                out.append(_worker(i))
-                if progress:
-                    progress(i + 1, total, cls.name)
-        else:
-            futs = {pool.submit(_worker, i): cls.name for i, cls in enumerate(classes)}
-            for n, f in enumerate(as_completed(futs), 1):
-                out.append(f.result())
-                if progress:
-                    progress(n, total, futs[f])
-    finally:
-        _CTX.pop("diagnose", None)
-        if pool is not None:
-            pool.shutdown()
-    return out
+    out: list[Candidate | None] = [None] * total
+    shared = {**ctx, "classes": list(classes)}
+    for n, (i, cand) in enumerate(executor.map(_evaluate, range(total), shared=shared), 1):
+        out[i] = cand
+        if progress:
+            progress(n, total, classes[i].name)
+    return [c for c in out if c is not None]
 
 
 def stability_notes(first: Sequence[Candidate], base_resid: np.ndarray, test: ft.Data
@@ -461,7 +448,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
              single: bool = False, max_effects: int = 3, alpha: float = 0.05,
              z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
-             final_nfev: int = 40,
+             final_nfev: int = 40, executor: Executor | None = None,
              progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses."""
@@ -507,34 +494,41 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     chosen: list[Candidate] = []
     first: list[Candidate] = []
     remaining = list(classes)
-    while remaining and len(chosen) < (1 if single else max_effects):
-        out = _round(remaining, {**ctx, "state": state}, jobs, progress,
-                     "fitting candidates" if not chosen else
-                     f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
-        level = alpha / max(1, len(out))
-        for c in out:
-            judge(c, level, min_gain, min_noise_gain, z_off)
-        out = rank(out, implies, min_gain)
-        # an effect implying another is named only if it beats it (rank put it after)
-        if not first:
-            first = out
-        best = next((c for c in out if c.significant), None)
-        if best is None or single:
-            if best is not None:
-                chosen.append(best)
-            break
-        _converge(best, base, by_name, train, test, final_nfev)
-        chosen.append(best)
-        cls_b = by_name[best.name]
-        remaining = [c for c in remaining if c is not cls_b
-                     and c.name not in cls_b.implies]
-        now = [_instance(best, by_name[n]) for n in best.effects]
-        state = State(now,
-                      best.test_resid if best.test_resid is not None else state.test_resid,
-                      {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
-                      best.train_cost,
-                      _noise_draws(ft.rebuild(base, now, rate=test.measurements[0].rate),
-                                   test, held_out_test) if remaining else None)
+    from rig.executor import LocalExecutor
+
+    ex = executor if executor is not None else LocalExecutor(jobs)
+    try:
+        while remaining and len(chosen) < (1 if single else max_effects):
+            out = _round(remaining, {**ctx, "state": state}, ex, progress,
+                         "fitting candidates" if not chosen else
+                         f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
+            level = alpha / max(1, len(out))
+            for c in out:
+                judge(c, level, min_gain, min_noise_gain, z_off)
+            out = rank(out, implies, min_gain)
+            # an effect implying another is named only if it beats it (rank put it after)
+            if not first:
+                first = out
+            best = next((c for c in out if c.significant), None)
+            if best is None or single:
+                if best is not None:
+                    chosen.append(best)
+                break
+            _converge(best, base, by_name, train, test, final_nfev)
+            chosen.append(best)
+            cls_b = by_name[best.name]
+            remaining = [c for c in remaining if c is not cls_b
+                         and c.name not in cls_b.implies]
+            now = [_instance(best, by_name[n]) for n in best.effects]
+            state = State(now,
+                          best.test_resid if best.test_resid is not None else state.test_resid,
+                          {c: (best.test_error[c], best.test_noise[c]) for c in base_test},
+                          best.train_cost,
+                          _noise_draws(ft.rebuild(base, now, rate=test.measurements[0].rate),
+                                       test, held_out_test) if remaining else None)
+    finally:
+        if executor is None:
+            ex.close()
     if chosen:
         _add_input_noise(chosen[-1], base, by_name, train)
     if first:

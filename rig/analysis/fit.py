@@ -18,12 +18,9 @@ strongly autocorrelated and independent-noise errors would be far too small.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import os
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -34,6 +31,9 @@ from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 from rig.model.effects import Effect
 from rig.model.integrators import Integrator
+
+if TYPE_CHECKING:
+    from rig.executor import Executor
 
 FAILED_PENALTY = 1.0
 ALIGN_S = 0.0  # residual (in channel ranges) of samples a failed simulation lacks
@@ -327,24 +327,17 @@ class FitResult:
         return self.status > 0
 
 
-# -- process pool: forked workers share the problem set up before the fork -------------
-_CTX: dict[str, Any] = {}
-
-
-def _pool_eval(key: str, x: np.ndarray) -> np.ndarray:
-    return _CTX[key](x)
-
-
-def make_pool(jobs: int | None) -> Executor | None:
-    """A forked process pool with ``jobs`` workers (None or 1: run in this process)."""
-    n = jobs if jobs is not None else (os.cpu_count() or 1)
-    if n <= 1:
-        return None
-    return ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("fork"))
+# -- the residual at a point: a module-level task for the executor seam (rig.executor) ------
+def _residual_at(problem: tuple[Any, ...], u: np.ndarray) -> np.ndarray:
+    """The residual vector of ``problem`` = (base, add, targets, rate, data) at ``u``."""
+    base, add, targets, rate, data = problem
+    values = {t.label: t.from_u(float(x)) for t, x in zip(targets, u, strict=True)}
+    return np.asarray(data.residuals(data.simulate(rebuild(base, add, values, targets, rate))))
 
 
 def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         add: Sequence[Effect | type[Effect]] = (), *, jobs: int | None = None,
+        executor: Executor | None = None,
         max_nfev: int = 40, diff_step: float = 0.02, scan: int = 0,
         scan_labels: Sequence[str] | None = None,
         progress: Callable[[float, float, str], None] | None = None,
@@ -352,7 +345,11 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
     """Fit the targets by least squares on ``data``'s masked samples (within bounds); with
     ``scan`` > 0 first scan ``scan`` points across the bounds of each target (or of those
     in ``scan_labels``) one at a time for a better start. With ``input_noise_draws`` > 1
-    the uncertainties include the input force's noise (``input_noise_cov``)."""
+    the uncertainties include the input force's noise (``input_noise_cov``).
+
+    The Jacobian's columns run on ``executor`` (rig.executor: local processes or a Dask
+    cluster; the problem travels once per worker) or, without one, on ``jobs`` local
+    processes (1: here)."""
     extra = [a if isinstance(a, Effect) else a() for a in add]
     targets = [s if isinstance(s, Target) else target(base, s, extra) for s in specs]
     if not targets:
@@ -365,19 +362,20 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
     def values_of(u: np.ndarray) -> dict[str, float]:
         return {t.label: t.from_u(float(x)) for t, x in zip(targets, u, strict=True)}
 
+    problem = (base, tuple(add), tuple(targets), rate, data)
     last: list[tuple[np.ndarray, np.ndarray]] = []
 
     def fun(u: np.ndarray) -> np.ndarray:
         if last and np.array_equal(last[0][0], u):
             return last[0][1]
-        model = rebuild(base, add, values_of(u), targets, rate)
-        r = data.residuals(data.simulate(model))
+        r = _residual_at(problem, u)
         last[:] = [(u.copy(), r)]
         return r
 
-    key = f"fit-{id(fun)}"
-    _CTX[key] = fun
-    pool = make_pool(jobs) if (jobs is None or jobs > 1) and len(targets) > 1 else None
+    from rig.executor import LocalExecutor, run_all
+
+    own = executor is None and (jobs is None or jobs > 1) and len(targets) > 1
+    ex = LocalExecutor(jobs) if own else executor
     history: list[float] = []
     calls = [0]
     budget = max_nfev * (len(targets) + 1)
@@ -402,8 +400,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             up = u.copy()
             up[j] = u[j] + h if u[j] + h <= hi[j] else u[j] - h
             pts.append(up)
-        if pool is not None:
-            cols = list(pool.map(_pool_eval, [key] * len(pts), pts))
+        if ex is not None and ex.workers > 1:
+            cols = run_all(ex, _residual_at, pts, shared=problem)
         else:
             cols = [fun(p) for p in pts]
         tick(r0, len(pts) + 1)
@@ -428,9 +426,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         sol = least_squares(fun_logged, u0, jac=jac, bounds=(lo, hi), x_scale=1.0,
                             max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
     finally:
-        _CTX.pop(key, None)
-        if pool is not None:
-            pool.shutdown()
+        if own and ex is not None:
+            ex.close()
     values = values_of(sol.x)
     sigma, corr = _uncertainty(targets, values, sol.fun, sol.jac, data.segments())
     if input_noise_draws > 1:

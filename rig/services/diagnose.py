@@ -18,10 +18,14 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
              duration: float | None = None, trials: Sequence[int] | None = None,
              channels: Sequence[str] | None = None, candidates: Sequence[str] | None = None,
              extra: Sequence[str] = (), jobs: int | None = None, single: bool = False,
-             backward: bool = False,
+             backward: bool = False, scheduler: str | None = None,
              write: Path | None = None, report_path: Path | None = None,
              progress: Callable[[float, float, str], None] | None = None) -> dg.Diagnosis:
-    """Diagnose the model (the rigid base model if none) against the run's trials."""
+    """Diagnose the model (the rigid base model if none) against the run's trials; the
+    candidates' fits run on local processes or the Dask cluster at ``scheduler`` (else
+    ``$RIG_SCHEDULER``)."""
+    from rig.executor import executor_for
+
     model = ActionModel.from_yaml(model_file)
     extra_classes = [type(make(e, Path.cwd())) for e in extra]
     refs = {}
@@ -31,9 +35,11 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
                           else spec)
     meas = ms.load(run, list(trials) if trials else None)
     label = Path(model_file).stem if model_file is not None else "base model"
-    diag = dg.diagnose(model, meas, input=input, duration=duration, channels=channels,
-                       candidates=candidates, extra=extra_classes, jobs=jobs, label=label,
-                       single=single, backward=backward, progress=progress)
+    with executor_for(jobs, scheduler) as ex:
+        diag = dg.diagnose(model, meas, input=input, duration=duration, channels=channels,
+                           candidates=candidates, extra=extra_classes, jobs=jobs,
+                           label=label, single=single, backward=backward, executor=ex,
+                           progress=progress)
     diag.refs = refs
     if write is not None and diag.best is not None:  # nothing to write without a winner
         dg.write_model(model_file, diag, write)

@@ -17,16 +17,21 @@ from rig.model.effects import make
 def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
         input: str = "force", duration: float | None = None,
         channels: Sequence[str] | None = None, jobs: int | None = None,
-        max_nfev: int = 40, write: Path | None = None,
+        max_nfev: int = 40, write: Path | None = None, scheduler: str | None = None,
         progress: Callable[[float, float, str], None] | None = None) -> ft.FitResult:
-    """Fit ``params`` on every trial of every run (in parallel over cores)."""
+    """Fit ``params`` on every trial of every run; the Jacobian's columns run on local
+    processes (one per core) or the Dask cluster at ``scheduler`` (else
+    ``$RIG_SCHEDULER``)."""
+    from rig.executor import executor_for
+
     if not runs:
         raise ValueError("runs: expected at least one run file")
     model = ActionModel.from_yaml(model_file)
     meas = [m for r in runs for m in ms.load(r)]
     data = ft.Data.build(meas, input, duration, channels)
-    res = ft.fit(model, data, params, jobs=jobs, max_nfev=max_nfev, progress=progress,
-                 input_noise_draws=ft.INPUT_NOISE_DRAWS)
+    with executor_for(jobs, scheduler) as ex:
+        res = ft.fit(model, data, params, executor=ex, max_nfev=max_nfev, progress=progress,
+                     input_noise_draws=ft.INPUT_NOISE_DRAWS)
     if write is not None:
         write_model(model_file, res, write)
     return res
