@@ -36,7 +36,7 @@ def cluster():
     from distributed import Client, LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, worker_dashboard_address=None) as lc, \
+                      dashboard_address=":0", worker_dashboard_address=None) as lc, \
             Client(lc) as client:
         yield lc, client
 
