@@ -42,38 +42,10 @@ from typing import Any
 import numpy as np
 
 from rig import calrecords, runfile
-from rig.calrecords import CalRecord
+from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault, open_reader
 from rig.supervisor import ControllerWatch, make_safe
-
-COMMAND_UNITS = {
-    "time": "s", "tick": "1", "target": "N", "feedforward": "N", "demand": "N", "volts": "V",
-    "limited": "1", "measured_force": "N", "lateness": "s", "missed": "1",
-}
-COMMAND_DOCS = {
-    "time": "trial time of the loop tick (0 = profile start)",
-    "tick": "index of the 500 Hz tick on the rig's clock",
-    "target": "profile force at this time",
-    "feedforward": "open-loop demand: the profile advance_s ahead, or with a motor "
-                   "calibration its inverse force map of the profile lag_s ahead "
-                   "(metadata run.compensation)",
-    "demand": "force demanded after the controller and the limits",
-    "volts": "analog output to the drive",
-    "limited": "1 where a force or rate limit changed the demand",
-    "measured_force": "latest load-cell force the controller saw",
-    "lateness": "time from the tick to the loop's wake-up",
-    "missed": "ticks missed before this one (the output was held)",
-}
-CHANNEL_DOCS = {
-    "time": "trial time (0 = profile start), sample / rate",
-    "sample": "sample counter since the acquisition started (proves no gap)",
-    "load_cell_ratio": "load-cell bridge output, raw",
-    "strain_ratio": "strain-gauge quarter bridge output, raw",
-    "force": "force on the key top from the load cell (calibration in metadata)",
-    "shank_strain": "hammer-shank strain at the gauge, + = tension",
-}
-
 
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
 
@@ -111,10 +83,7 @@ class Acquisition:
         self.trials: list[_Trial] = []
         self.next_sample = 0
         self.units = calrecords.channel_units(cfg)
-        self.docs = dict(CHANNEL_DOCS)
-        for n, enc in cfg.channels.encoders.items():
-            self.docs[f"{n}_counts"] = f"{n} encoder counts (x4), on the {enc.body}"
-            self.docs[enc.channel_name] = f"{enc.body} from the {n} encoder"
+        self.docs = calrecords.channel_docs(cfg)
         self.stop: tuple[Any, ...] | None = None
 
     # -- messages --------------------------------------------------------------------

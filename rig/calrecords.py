@@ -83,6 +83,51 @@ def channel_units(cfg: RigConfig) -> dict[str, str]:
     return {k: v for k, v in u.items() if k != "strain_ratio" or "shank_strain" in u}
 
 
+# the 500 Hz loop's records in a run file (section "commands")
+COMMAND_UNITS = {
+    "time": "s", "tick": "1", "target": "N", "feedforward": "N", "demand": "N", "volts": "V",
+    "limited": "1", "measured_force": "N", "lateness": "s", "missed": "1",
+}
+COMMAND_DOCS = {
+    "time": "trial time of the loop tick (0 = profile start)",
+    "tick": "index of the 500 Hz tick on the rig's clock",
+    "target": "profile force at this time",
+    "feedforward": "open-loop demand: the profile advance_s ahead, or with a motor "
+                   "calibration its inverse force map of the profile lag_s ahead "
+                   "(metadata run.compensation)",
+    "demand": "force demanded after the controller and the limits",
+    "volts": "analog output to the drive",
+    "limited": "1 where a force or rate limit changed the demand",
+    "measured_force": "latest load-cell force the controller saw",
+    "lateness": "time from the tick to the loop's wake-up",
+    "missed": "ticks missed before this one (the output was held)",
+}
+CHANNEL_DOCS = {
+    "time": "trial time (0 = profile start), sample / rate",
+    "sample": "sample counter since the acquisition started (proves no gap)",
+    "load_cell_ratio": "load-cell bridge output, raw",
+    "strain_ratio": "strain-gauge quarter bridge output, raw",
+    "force": "force on the key top from the load cell (calibration in metadata)",
+    "shank_strain": "hammer-shank strain at the gauge, + = tension",
+}
+
+
+def channel_docs(cfg: RigConfig) -> dict[str, str]:
+    """Description of every channel a measured (or synthetic) run stores. Encoder angles are
+    the record's offset (the body's angle at count 0, i.e. at the acquisition start, in the
+    model's ground frame; nominal: channels.encoders.<name>.initial_value, 0 by default)
+    plus the counted motion."""
+    docs = dict(CHANNEL_DOCS)
+    for n, enc in cfg.channels.encoders.items():
+        docs[f"{n}_counts"] = f"{n} encoder counts (x4) since the acquisition start, on the " \
+                              f"{enc.body}"
+        start = ("motion from the pose at the acquisition start" if enc.initial_value == 0
+                 else f"{enc.initial_value:g} {enc.units} at the acquisition start + motion")
+        docs[enc.channel_name] = (f"{enc.body} from the {n} encoder: calibration offset + "
+                                  f"counted motion (nominal: {start})")
+    return docs
+
+
 def convert(block: np.ndarray, cfg: RigConfig, cals: dict[str, CalRecord],
             t0_sample: int = 0) -> dict[str, np.ndarray]:
     """A raw block (rows of ``raw_names``) -> named raw and SI channels, with time (s)."""

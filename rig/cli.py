@@ -10,6 +10,8 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from rig.errors import refuse_existing
+
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Piano-action test rig: simulate, run, calibrate, compare.")
 console = Console()
@@ -33,6 +35,28 @@ def _main(version: Annotated[bool, typer.Option(
     """Piano-action test rig: simulate, run, calibrate, compare."""
 
 
+_JsonOpt = Annotated[bool, typer.Option(
+    "--json", help="print one JSON document instead of text (schemas: docs/json.md)")]
+
+
+def _emit_json(doc: dict[str, Any]) -> None:
+    """One JSON document on stdout (NaN and infinities as null), nothing else."""
+    import json
+
+    def clean(v: Any) -> Any:
+        if isinstance(v, float):
+            return v if math.isfinite(v) else None
+        if isinstance(v, dict):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        if hasattr(v, "item") and callable(v.item):  # numpy scalars
+            return clean(v.item())
+        return v
+
+    print(json.dumps(clean(doc), allow_nan=False))
+
+
 def _fail(exc: Exception) -> typer.Exit:
     err.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
     return typer.Exit(code=2)
@@ -54,13 +78,16 @@ def simulate(
     output_rate: Annotated[float | None, typer.Option(help="channel rate, Hz")] = None,
     force_limit: Annotated[float, typer.Option(
         help="refuse profiles above this force, N")] = 120.0,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+    as_json: _JsonOpt = False,
 ) -> None:
     """Simulate one blow of the action under PROFILE and write a run file."""
     from rig.services import simulate as svc
 
     try:
+        refuse_existing(out, force)
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn(
-                "{task.fields[sim]}"), TimeElapsedColumn(), console=console,
+                "{task.fields[sim]}"), TimeElapsedColumn(), console=err if as_json else console,
                 transient=True) as bar:
             task = bar.add_task("preparing the model (compiled on first use: about a minute)",
                                 total=None, sim="")
@@ -77,6 +104,16 @@ def simulate(
     except ValueError as exc:
         raise _fail(exc) from None
     s = result.summary()
+    if as_json:
+        _emit_json({"schema": "rig.simulate/1", "out": str(out), "success": result.success,
+                    "message": result.message, "effects": list(m.effect_names),
+                    "integrator": m.integrator.name,
+                    "simulated_time_s": result.stats["simulated_time_s"],
+                    "wall_time_s": result.stats["wall_time_s"], "summary": s,
+                    "events": dict(result.events)})
+        if not result.success:
+            raise typer.Exit(code=1)
+        return
     effects = ", ".join(m.effect_names) or "none (rigid base model)"
     console.print(f"model: effects {effects}; integrator {m.integrator.name}")
     if not result.success:
@@ -98,7 +135,8 @@ def simulate(
 
 
 @app.command()
-def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
+def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
+         as_json: _JsonOpt = False) -> None:
     """Summarize a run file: status, provenance, calibrations, loop statistics, and per
     trial its channels with value ranges and its events in time order."""
     import numpy as np
@@ -110,6 +148,9 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
     except ValueError as exc:
         raise _fail(exc) from None
     a = r.attrs
+    if as_json:
+        _emit_json(_info_doc(run, r))
+        return
     _plain(f"{run}: {r.kind} run, status {r.status}")
     _plain(f"created {a.get('created')} on {a.get('host')} by rig "
            f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})")
@@ -155,6 +196,41 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")]) -> None:
                                                                  x[1])):
             shown = f"{t * 1e3:.2f} ms" if math.isfinite(t) else "--"
             _plain(f"  event {name:<22} {shown}")
+
+
+def _info_doc(path: Path, r: Any) -> dict[str, Any]:
+    import numpy as np
+
+    model = r.metadata.get("model")
+    trials = []
+    for i, tr in enumerate(r.trials):
+        t = tr.channels.get("time")
+        chans = []
+        for name, data in tr.channels.items():
+            arr = np.asarray(data, float)
+            fin = arr[np.isfinite(arr)]
+            chans.append({"name": name, "units": tr.units.get(name, ""),
+                          "min": float(fin.min()) if fin.size else None,
+                          "max": float(fin.max()) if fin.size else None,
+                          "columns": [c.item() if hasattr(c, "item") else c
+                                      for c in tr.columns[name]] if name in tr.columns else None})
+        ev = sorted(tr.events.items(), key=lambda x: (not math.isfinite(x[1]), x[1]))
+        trials.append({"index": i, "status": str(tr.attrs.get("status", "")),
+                       "samples": int(t.size) if t is not None else 0,
+                       "start_s": float(t[0]) if t is not None and t.size else None,
+                       "end_s": float(t[-1]) if t is not None and t.size else None,
+                       "channels": chans, "events": [{"name": k, "time_s": v} for k, v in ev],
+                       "commands": sorted(tr.commands)})
+    cals = r.metadata.get("calibrations")
+    loop = r.metadata.get("loop_lateness")
+    return {"schema": "rig.info/1", "path": str(path), "kind": r.kind, "status": r.status,
+            "created": str(r.attrs.get("created", "")), "host": str(r.attrs.get("host", "")),
+            "software_version": str(r.attrs.get("software_version", "")),
+            "git_commit": str(r.attrs.get("git_commit", "")),
+            "model_effects": [e.get("name") for e in model.get("effects", [])]
+            if isinstance(model, dict) else None,
+            "calibrations": cals if isinstance(cals, list) else [],
+            "loop_lateness": loop if isinstance(loop, dict) else None, "trials": trials}
 
 
 @app.command("plot")
@@ -228,9 +304,22 @@ def regulate(
 
 
 @app.command("effects")
-def list_effects() -> None:
+def list_effects(as_json: _JsonOpt = False) -> None:
     """List the effect library: parameters and the residual each effect explains."""
     from rig.model.effects import BUILTIN
+
+    if as_json:
+        _emit_json({"schema": "rig.effects/1", "effects": [
+            {"name": cls.name, "summary": cls.summary,
+             "signature": {"kind": cls.signature.kind,
+                           "frequency_hz": cls.signature.frequency_hz or None,
+                           "channels": list(cls.signature.channels),
+                           "phases": list(cls.signature.phases), "text": cls.signature.text},
+             "parameters": [{"name": p.name, "default": p.default, "units": p.units,
+                             "low": p.bounds[0], "high": p.bounds[1], "fitted": p.fitted,
+                             "description": p.description} for p in cls.parameters]}
+            for cls in BUILTIN.values()]})
+        return
 
     for cls in BUILTIN.values():
         sig = cls.signature
@@ -568,6 +657,8 @@ def compare_cmd(
     channel: Annotated[list[str] | None, typer.Option(help="compare only these channels")
                        ] = None,
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --report")
+                     ] = False,
 ) -> None:
     """Drive each model with the run's measured input and tabulate its errors."""
     from rig.analysis import compare as cp
@@ -575,6 +666,7 @@ def compare_cmd(
 
     _warn_unfinished([run])
     try:
+        refuse_existing(report, force, "report")
         with _bar() as bar:
             bar.add_task("simulating the models against the run", total=None, sim="")
             comps = svc.compare(run, model or [], input=input, duration=duration, trials=trial,
@@ -614,12 +706,16 @@ def diagnose_cmd(
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --write / --report")
+                     ] = False,
 ) -> None:
     """Where the model fails, and which library effect removes the residual."""
     from rig.services import diagnose as svc
 
     _warn_unfinished([run])
     try:
+        refuse_existing(write, force, "write")
+        refuse_existing(report, force, "report")
         with _bar() as bar:
             task = bar.add_task("fitting candidate effects", total=None, sim="")
             diag = svc.diagnose(run, model, input=input, duration=duration, trials=trial,
@@ -656,12 +752,15 @@ def fit_cmd(
     write: Annotated[Path | None, typer.Option(help="save the fitted model YAML here")] = None,
     scheduler: Annotated[str | None, typer.Option(
         help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --write")] = False,
+    as_json: _JsonOpt = False,
 ) -> None:
     """Fit model or effect parameters to one or many runs (scipy least squares)."""
     from rig.services import fit as svc
 
     _warn_unfinished(runs)
     try:
+        refuse_existing(write, force, "write")
         with _bar() as bar:
             task = bar.add_task("fitting", total=None, sim="")
             res = svc.fit(runs, model, param, input=input, duration=duration, channels=channel,
@@ -671,6 +770,14 @@ def fit_cmd(
         raise _fail(exc) from None
     from rig.analysis.stats import fmt
 
+    if as_json:
+        _emit_json({"schema": "rig.fit/1", "parameters": [
+            {"name": t.label, "value": res.values[t.label], "sigma": res.sigma[t.label],
+             "units": t.units, "start": t.value, "low": t.lo, "high": t.hi}
+            for t in res.targets], "cost_start": res.cost_start, "cost": res.cost,
+            "evaluations": res.nfev, "success": res.success, "message": res.message,
+            "write": str(write) if write is not None else None})
+        return
     for t in res.targets:
         console.print(f"{t.label} = {fmt(res.values[t.label], res.sigma[t.label], t.units)} "
                       f"(start {t.value:.6g}, bounds [{t.lo:.4g}, {t.hi:.4g}])",
@@ -700,11 +807,13 @@ def synth_cmd(
     record_truth: Annotated[bool, typer.Option(
         help="store the truth model in the file's metadata (off: the analysis cannot peek)")
     ] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
 ) -> None:
     """Make a measurement-like run from a truth model through the drive and sensor models."""
     from rig.services import synth as svc
 
     try:
+        refuse_existing(out, force)
         made = svc.synth(model, profile, out, seed=seed, trials=trials, duration=duration,
                          rig=rig, load_cell_filter=load_cell_filter, noise_scale=noise_scale,
                          record_truth=record_truth)

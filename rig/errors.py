@@ -12,6 +12,8 @@ while the code moves over to it. Raise it with the file and field in the message
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 class RigError(Exception):
     """Root of the errors rig raises on purpose."""
@@ -19,3 +21,9 @@ class RigError(Exception):
 
 class InputError(RigError, ValueError):
     """The user's bad input: one line naming the file and field; exit 2, nothing written."""
+
+
+def refuse_existing(path: Path | None, force: bool, field: str = "out") -> None:
+    """The user's existing file is never replaced without ``force`` (--force)."""
+    if path is not None and Path(path).exists() and not force:
+        raise InputError(f"{field}: {path} exists (use --force to replace it)")

@@ -74,6 +74,56 @@ def current_event_names(events: Mapping[str, float]) -> dict[str, float]:
         return dict(events)
     return {LEGACY_EVENT_NAMES.get(n, n): v for n, v in events.items()}
 
+# descriptions of the datasets every section has, when the writer gives none
+DEFAULT_DOCS = {"time": "time since the trial's start (0 = profile start)"}
+SCALE = "DIMENSION_SCALE"
+
+
+def _is_scale(ds: h5py.Dataset) -> bool:
+    cls = ds.attrs.get("CLASS")
+    return (cls.decode() if isinstance(cls, bytes) else str(cls)) == SCALE
+
+
+def _column_scale(grp: h5py.Group, name: str, columns: Iterable[Any]) -> h5py.Dataset:
+    """The dimension scale labelling a 2-D dataset's columns: shared by every dataset with
+    the same labels and the same name prefix (``contact_force``, ``contact_slip``, ... share
+    ``contact``), else ``<name>_column``."""
+    values = np.asarray(list(columns))
+    for dim in (name.split("_")[0], f"{name}_column"):
+        if dim in grp:
+            have = grp[dim]
+            if _is_scale(have) and have.shape == values.shape and np.array_equal(
+                    have[()].astype(values.dtype) if values.dtype.kind != "U" else
+                    np.asarray(have.asstr()[()]), values):
+                return have
+            continue
+        if values.dtype.kind == "U":
+            scale = grp.create_dataset(dim, data=values.astype(object),
+                                       dtype=h5py.string_dtype())
+        else:
+            scale = grp.create_dataset(dim, data=values)
+        scale.attrs["units"] = "1"
+        scale.attrs["long_name"] = f"column label of {name}"
+        scale.make_scale(dim)
+        return scale
+    raise ValueError(f"{grp.name}/{name}: no free name for its column scale")
+
+
+def _attach_scales(grp: h5py.Group, name: str, ds: h5py.Dataset,
+                   columns: Iterable[Any] | None) -> None:
+    """Time as the HDF5 dimension scale of every dataset's rows (so netCDF readers such as
+    xarray see ``time`` as the coordinate), and the column labels of 2-D datasets."""
+    if name == "time" and ds.ndim == 1:
+        ds.make_scale("time")
+        for other in grp.values():
+            if other.name != ds.name and not _is_scale(other):
+                other.dims[0].attach_scale(ds)
+    elif "time" in grp and _is_scale(grp["time"]):
+        ds.dims[0].attach_scale(grp["time"])
+    if columns is not None and ds.ndim == 2:
+        ds.dims[1].attach_scale(_column_scale(grp, name, columns))
+
+
 class TrialWriter:
     """Channels, commands and events of one trial (appendable)."""
 
@@ -90,10 +140,13 @@ class TrialWriter:
         chunks = (4096,) if width is None else (1024, width)
         ds = grp.create_dataset(name, shape=shape, maxshape=maxshape, dtype="f8", chunks=chunks)
         ds.attrs["units"] = units
+        description = description or DEFAULT_DOCS.get(name, "")
         if description:
             ds.attrs["description"] = description
+            ds.attrs["long_name"] = description
         if columns is not None:
             ds.attrs["columns"] = np.asarray(list(columns))
+        _attach_scales(grp, name, ds, columns)
         return ds
 
     def append(self, section: str, data: Mapping[str, np.ndarray], units: Mapping[str, str],
@@ -222,9 +275,73 @@ class Trial:
     commands: dict[str, np.ndarray] = field(default_factory=dict)
     attrs: dict[str, Any] = field(default_factory=dict)
 
+    descriptions: dict[str, str] = field(default_factory=dict)
+
     @property
     def time(self) -> np.ndarray:
         return self.channels["time"]
+
+    def to_xarray(self, section: str = "channels") -> Any:
+        """The trial's channels (or ``section="commands"``) as an ``xarray.Dataset`` with time
+        as the coordinate (and ``contact`` for per-contact channels); units, long_name and
+        description in each variable's attributes, events (s) in the dataset's attributes
+        as ``event_<name>``."""
+        import xarray as xr
+
+        if section not in ("channels", "commands"):
+            raise ValueError(f"section: expected 'channels' or 'commands', got {section!r}")
+        data = self.channels if section == "channels" else self.commands
+        prefix = "" if section == "channels" else "commands/"
+        if "time" not in data:
+            raise ValueError(f"this trial has no {section} (no time base)")
+        t = np.asarray(data["time"], float)
+
+        def attrs(name: str) -> dict[str, str]:
+            a = {"units": self.units.get(prefix + name, "")}
+            doc = self.descriptions.get(prefix + name, "") or DEFAULT_DOCS.get(name, "")
+            if doc:
+                a.update(long_name=doc, description=doc)
+            return a
+
+        coords: dict[str, Any] = {"time": ("time", t, attrs("time"))}
+        variables: dict[str, Any] = {}
+        for name, v in data.items():
+            if name == "time":
+                continue
+            v = np.asarray(v)
+            if v.ndim == 1:
+                variables[name] = (("time",), v, attrs(name))
+            elif v.ndim == 2:
+                cols = np.asarray(self.columns.get(name, np.arange(v.shape[1])))
+                dim = name.split("_")[0] if name in self.columns else f"{name}_column"
+                if dim in coords and not np.array_equal(coords[dim][1], cols):
+                    dim = f"{name}_column"
+                coords.setdefault(dim, (dim, cols, {"units": "1"}))
+                variables[name] = (("time", dim), v, attrs(name))
+        ds_attrs: dict[str, Any] = {k: v for k, v in self.attrs.items()
+                                    if isinstance(v, str | int | float | np.generic)}
+        ds_attrs.update({f"event_{k}": float(v) for k, v in self.events.items()})
+        return xr.Dataset(variables, coords=coords, attrs=ds_attrs)
+
+    def to_dataframe(self, section: str = "channels") -> Any:
+        """The trial's 1-D channels (or commands) as a ``pandas.DataFrame`` indexed by time
+        (s); per-contact channels as one column per contact (``contact_force[12]``)."""
+        import pandas as pd
+
+        data = self.channels if section == "channels" else self.commands
+        if section not in ("channels", "commands") or "time" not in data:
+            raise ValueError(f"section: no {section!r} with a time base in this trial")
+        cols: dict[str, np.ndarray] = {}
+        for name, v in data.items():
+            v = np.asarray(v)
+            if name == "time":
+                continue
+            if v.ndim == 1:
+                cols[name] = v
+            else:
+                labels = self.columns.get(name, np.arange(v.shape[1]))
+                cols.update({f"{name}[{c}]": v[:, j] for j, c in enumerate(labels)})
+        return pd.DataFrame(cols, index=pd.Index(np.asarray(data["time"], float), name="time"))
 
 
 @dataclass
@@ -246,18 +363,23 @@ class Run:
 
 
 def _read_section(grp: h5py.Group | None) -> tuple[dict[str, np.ndarray], dict[str, str],
-                                                    dict[str, np.ndarray]]:
+                                                    dict[str, np.ndarray], dict[str, str]]:
     data: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
     cols: dict[str, np.ndarray] = {}
+    docs: dict[str, str] = {}
     if grp is None:
-        return data, units, cols
+        return data, units, cols, docs
     for name, ds in grp.items():
+        if name != "time" and _is_scale(ds):  # column labels (also in the "columns" attribute)
+            continue
         data[name] = ds[()]
         units[name] = str(ds.attrs.get("units", ""))
+        if "description" in ds.attrs:
+            docs[name] = str(ds.attrs["description"])
         if "columns" in ds.attrs:
             cols[name] = np.asarray(ds.attrs["columns"])
-    return data, units, cols
+    return data, units, cols, docs
 
 
 def read(path: str | Path) -> Run:
@@ -282,11 +404,12 @@ def read(path: str | Path) -> Run:
         trials = []
         for name in sorted(n for n in f if n.startswith("trial_")):
             g = f[name]
-            ch, units, cols = _read_section(g.get("channels"))
-            cmd, cunits, _ = _read_section(g.get("commands"))
+            ch, units, cols, docs = _read_section(g.get("channels"))
+            cmd, cunits, _, cdocs = _read_section(g.get("commands"))
             units.update({f"commands/{k}": v for k, v in cunits.items()})
+            docs.update({f"commands/{k}": v for k, v in cdocs.items()})
             ev = current_event_names({k: float(v[()]) for k, v in g.get("events", {}).items()})
-            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs)))
+            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs), docs))
     return Run(p, attrs, meta, trials)
 
 
@@ -314,6 +437,11 @@ def write_result(path: str | Path, result: Any, kind: str = "simulated",
         data = {"time": result.time, **{k: v for k, v in result.channels.items() if k != "time"}}
         cols = {k: result.contact_ids for k, v in data.items() if np.ndim(v) == 2}
         tr.append("channels", data, result.units, CHANNEL_DOCS, cols)
+        names = result.metadata.get("contact_names", [])
+        if cols and "contact" in tr.group["channels"] and len(names) == len(result.contact_ids):
+            tr.group["channels/contact"].attrs.create("names", [str(n) for n in names],
+                                                      dtype=h5py.string_dtype())
+            tr.group["channels/contact"].attrs["long_name"] = "contact id (names: attribute)"
         tr.write_events({k: (v if math.isfinite(v) else math.nan) for k, v in
                          result.events.items()}, EVENT_DOCS)
         tr.set_attrs(status=status, t0=0.0)

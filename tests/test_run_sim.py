@@ -352,3 +352,21 @@ def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path)
     after = {th.name: os.sched_getscheduler(th.native_id) for th in threading.enumerate()
              if th.native_id is not None}
     assert set(after.values()) == {os.SCHED_OTHER}, after
+
+
+def test_xarray_opens_a_measured_run_with_time_as_the_dimension(forte_run) -> None:
+    """Time is the HDF5 dimension scale of every channel and command, so the netCDF reader
+    gives it as the coordinate in one line; every dataset has units and a long_name."""
+    xr = pytest.importorskip("xarray")
+    _, run = forte_run
+    with xr.open_dataset(run.path, group="trial_000/channels", engine="h5netcdf") as ds:
+        assert set(ds.dims) == {"time"} and "time" in ds.coords
+        assert ds.sizes["time"] == run.trials[0].time.size
+        assert np.array_equal(ds["force"].values, run.trials[0].channels["force"])
+        for name, var in ds.variables.items():
+            assert var.attrs.get("units") and var.attrs.get("long_name"), name
+        assert "acquisition start" in ds["hammer_angle"].attrs["long_name"]  # its reference
+    with xr.open_dataset(run.path, group="trial_000/commands", engine="h5netcdf") as cmd:
+        assert set(cmd.dims) == {"time"}
+        assert np.array_equal(cmd["volts"].values, run.trials[0].commands["volts"])
+        assert all(v.attrs.get("long_name") for v in cmd.variables.values())

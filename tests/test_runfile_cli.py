@@ -119,3 +119,61 @@ def test_cli_info_summarizes_a_run(tmp_path, forte_rigid):
     assert "hammer_angle" in result.output and "event strike" in result.output
     bad = CliRunner().invoke(app, ["info", str(tmp_path / "none.h5")])
     assert bad.exit_code == 2 and "not found" in bad.output
+
+
+def test_xarray_opens_a_simulated_run_with_time_and_contact_coordinates(tmp_path, forte_rigid):
+    xr = pytest.importorskip("xarray")
+    path = runfile.write_result(tmp_path / "sim.h5", forte_rigid)
+    with xr.open_dataset(path, group="trial_000/channels", engine="h5netcdf") as ds:
+        assert set(ds.dims) == {"time", "contact"}
+        assert np.array_equal(ds["time"].values, forte_rigid.time)
+        assert list(ds["contact"].values) == list(forte_rigid.contact_ids)
+        assert len(ds["contact"].attrs["names"]) == len(forte_rigid.contact_ids)
+        assert ds["contact_force"].dims == ("time", "contact")
+        assert float(ds["contact_force"].sel(contact=12).max()) == pytest.approx(
+            float(forte_rigid.contact("contact_force", 12).max()))
+        for name, var in ds.variables.items():
+            assert var.attrs.get("units") and var.attrs.get("long_name"), name
+    tr = runfile.read(path).trials[0]  # the column scale is not read back as a channel
+    assert "contact" not in tr.channels and set(tr.channels) == set(ds.variables) - {"contact"}
+
+
+def test_a_file_without_dimension_scales_still_reads(tmp_path):
+    """Files written before time became a dimension scale (format_version 1 as well)."""
+    path = tmp_path / "old.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs.update({"format": "rig-run", "format_version": 1, "kind": "measured",
+                        "status": "complete", "n_trials": 1})
+        f.create_group("metadata")
+        g = f.create_group("trial_000/channels")
+        t = np.arange(100) / 2000
+        g.create_dataset("time", data=t).attrs["units"] = "s"
+        g.create_dataset("force", data=np.sin(t)).attrs["units"] = "N"
+        f["trial_000"].attrs["status"] = "complete"
+    tr = runfile.read(path).trials[0]
+    assert set(tr.channels) == {"time", "force"} and np.array_equal(tr.time, t)
+    xr = pytest.importorskip("xarray")
+    with xr.open_dataset(path, group="trial_000/channels", engine="h5netcdf",
+                         phony_dims="sort") as ds:
+        assert np.array_equal(ds["force"].values, np.sin(t))
+
+
+def test_xarray_opens_a_synthetic_run_with_described_channels(tmp_path):
+    xr = pytest.importorskip("xarray")
+    from pathlib import Path
+
+    from rig import profiles
+    from rig.analysis import synth
+    from rig.model.action import ActionModel
+
+    prof = profiles.load(Path(__file__).resolve().parents[1] / "profiles" / "forte.yaml")
+    path = tmp_path / "syn.h5"
+    synth.synth(ActionModel(), [prof], path, seed=1, duration=0.03)
+    tr = runfile.read(path).trials[0]
+    with xr.open_dataset(path, group="trial_000/channels", engine="h5netcdf") as ds:
+        assert set(ds.dims) == {"time"} and ds.sizes["time"] == tr.time.size
+        assert set(ds.data_vars) == set(tr.channels) - {"time"}
+        for name, var in ds.variables.items():
+            assert var.attrs.get("units") and var.attrs.get("long_name"), name
+    with xr.open_dataset(path, group="trial_000/commands", engine="h5netcdf") as cmd:
+        assert set(cmd.dims) == {"time"} and cmd["demand"].attrs["units"] == "N"

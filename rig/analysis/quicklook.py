@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -98,8 +99,22 @@ def plot(path: str | Path, out: str | Path, *, trial: int = 0,
     return out
 
 
-def _html(tr: runfile.Trial, names: list[str], mask: np.ndarray, tw: np.ndarray,
-          events: dict[str, float], title: str, out: Path) -> None:
+def figure(tr: runfile.Trial, channels: Sequence[str] | None = None,
+           window: tuple[float, float] | None = None, title: str = "") -> Any:
+    """The quick look of a trial as a Plotly figure (channels stacked, events marked)."""
+    names = channels_of(tr, channels)
+    t = np.asarray(tr.time, float)
+    lo, hi = window if window is not None else (-math.inf, math.inf)
+    mask = (t >= lo) & (t <= hi)
+    if mask.sum() < 2:
+        raise ValueError(f"window: no samples in {lo:g}:{hi:g} s (the trial spans {t[0]:g} "
+                         f"to {t[-1]:g} s)")
+    events = {k: v for k, v in tr.events.items() if math.isfinite(v)}
+    return _figure(tr, names, mask, t[mask], events, title)
+
+
+def _figure(tr: runfile.Trial, names: list[str], mask: np.ndarray, tw: np.ndarray,
+            events: dict[str, float], title: str) -> Any:
     fig = pl.stacked(names, title=title)
     pl.event_lines(fig, events, len(names), "", float(tw[0]), float(tw[-1]),
                    span=(float(tw[0]), float(tw[-1])))
@@ -109,6 +124,12 @@ def _html(tr: runfile.Trial, names: list[str], mask: np.ndarray, tw: np.ndarray,
             pl.line(fig, tw, y, r, label, pl.MODEL_COLOURS[j % len(pl.MODEL_COLOURS)]
                     if len(series) > 1 else "black", True, width=1.4)
         fig.update_yaxes(title_text=f"{name} [{u}]", title_font={"size": 12}, row=r, col=1)
+    return fig
+
+
+def _html(tr: runfile.Trial, names: list[str], mask: np.ndarray, tw: np.ndarray,
+          events: dict[str, float], title: str, out: Path) -> None:
+    fig = _figure(tr, names, mask, tw, events, title)
     ev = ", ".join(f"{pl.event_label(k)} {v * 1e3:.2f} ms" for k, v in
                    sorted(events.items(), key=lambda x: x[1])) or "none recorded"
     import html as _h

@@ -23,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
+from rig import calrecords, encoders, loadcell, profiles, runfile, strain
 from rig import config as rig_config
-from rig import encoders, loadcell, profiles, runfile, strain
 from rig.config import RigConfig
 from rig.model.action import ActionModel, SimResult
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet
 
-COMMAND_UNITS = {"time": "s", "demand": "N"}
+COMMAND_UNITS = {k: calrecords.COMMAND_UNITS[k] for k in ("time", "demand")}
 HARDWARE_FILTER_HZ = 100.0  # the SCXI-1520's filter (sensors.load_cell.hardware_lowpass_hz)
 
 
@@ -152,6 +152,7 @@ def synth(truth: ActionModel, profile_list: Sequence[profiles.Profile], out: Pat
     if record_truth:
         d = truth.describe()
         meta["truth"] = {"source": truth_source, "effects": d["effects"]}
+    docs = calrecords.channel_docs(cfg)
     with runfile.RunWriter(out, "synthetic", meta) as w:
         k = 0
         for prof in profile_list:
@@ -159,8 +160,8 @@ def synth(truth: ActionModel, profile_list: Sequence[profiles.Profile], out: Pat
                 st = synth_trial(truth, prof, cfg, seed * 1000 + k, duration, load_cell_filter,
                                  noise_scale)
                 tw = w.trial()
-                tw.append("channels", st.channels, st.units)
-                tw.append("commands", st.commands, COMMAND_UNITS)
+                tw.append("channels", st.channels, st.units, docs)
+                tw.append("commands", st.commands, COMMAND_UNITS, calrecords.COMMAND_DOCS)
                 tw.set_attrs(status="complete", t0=0.0, profile=prof.name)
                 made.append(st)
                 k += 1

@@ -81,6 +81,9 @@ CHANNEL_DOCS: dict[str, str] = {
     "shank_tip_deflection": "shank tip's transverse deflection in the shank frame",
     "key_lift": "key pivot's height above its rest on the balance rail (prismatic coordinate)",
 }
+CHANNEL_DOCS.update({n.replace("_angle", "_angular_velocity"):
+                     f"rate of change of {n} ({CHANNEL_DOCS[n].split(',')[0]})"
+                     for n in ANGLE_CHANNELS if n in CHANNEL_DOCS})
 
 # event name -> (contact id, direction), + = contact closes, - = opens
 EVENT_DOCS: dict[str, str] = {

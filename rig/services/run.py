@@ -38,7 +38,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from rig import calrecords, loadcell, motor_torque, pacing, profiles, runfile
-from rig.acquisition import COMMAND_UNITS, run_acquisition
+from rig.acquisition import COMMAND_DOCS, COMMAND_UNITS, run_acquisition
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
@@ -728,7 +728,7 @@ def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, st
         tw = w.trial(k)
         if have < first + part.shape[0]:  # (a gap if the file lacks rows no longer kept)
             tw.append("commands", {c: part[max(0, have - first):, j]
-                                   for j, c in enumerate(_COLS)}, COMMAND_UNITS)
+                                   for j, c in enumerate(_COLS)}, COMMAND_UNITS, COMMAND_DOCS)
     for name, value in meta.items():
         w.add_metadata(name, value)
     for k, attrs in tattrs.items():
