@@ -45,6 +45,7 @@ from rig import calrecords, runfile
 from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault, open_reader
+from rig.errors import InputError
 from rig.supervisor import ControllerWatch, make_safe
 
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
@@ -98,7 +99,7 @@ class Acquisition:
         elif kind == "stop":
             self.stop = msg
         else:
-            raise ValueError(f"message: unknown kind {kind!r}")
+            raise InputError(f"message: unknown kind {kind!r}")
 
     def _trial(self, k: int) -> _Trial:
         for tr in self.trials:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from rig import runfile
-from rig.errors import refuse_existing
+from rig.errors import InputError, refuse_existing
 
 
 @dataclass
@@ -45,7 +45,7 @@ class Trial(runfile.Trial):
     def summary(self) -> dict[str, float]:
         """Strike time and speed, string contact, let-off distance (simulated blows)."""
         if self.result is None:
-            raise ValueError("summary: only a simulated blow (rig.simulate) has one")
+            raise InputError("summary: only a simulated blow (rig.simulate) has one")
         return dict(self.result.summary())
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from rig import encoders, loadcell, strain
 from rig.config import RigConfig
+from rig.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,7 @@ def convert(block: np.ndarray, cfg: RigConfig, cals: dict[str, CalRecord],
     """A raw block (rows of ``raw_names``) -> named raw and SI channels, with time (s)."""
     names = raw_names(cfg)
     if block.ndim != 2 or block.shape[1] != len(names):
-        raise ValueError(f"block: expected rows of {len(names)} columns {names}, got "
+        raise InputError(f"block: expected rows of {len(names)} columns {names}, got "
                          f"shape {block.shape}")
     cols = {n: block[:, i] for i, n in enumerate(names)}
     out: dict[str, np.ndarray] = {

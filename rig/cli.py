@@ -10,12 +10,12 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from rig.errors import refuse_existing
+from rig.errors import InputError, refuse_existing
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+app = typer.Typer(add_completion=True, no_args_is_help=True,
                   help="Piano-action test rig: simulate, run, calibrate, compare.")
-console = Console()
-err = Console(stderr=True)
+console = Console(soft_wrap=True)  # off a terminal: no wrapping at 80 columns
+err = Console(stderr=True, soft_wrap=True)
 
 
 def _version(value: bool) -> None:
@@ -31,8 +31,13 @@ def _version(value: bool) -> None:
 @app.callback()
 def _main(version: Annotated[bool, typer.Option(
         "--version", callback=_version, is_eager=True, help="print the version and exit")
-] = False) -> None:
+] = False, verbose: Annotated[bool, typer.Option(
+        "--verbose", "-v", help="tracebacks of internal errors")] = False,
+        quiet: Annotated[bool, typer.Option(
+            "--quiet", "-q", help="no progress display (results and errors only)")] = False,
+) -> None:
     """Piano-action test rig: simulate, run, calibrate, compare."""
+    options.verbose, options.quiet = verbose, quiet
 
 
 _JsonOpt = Annotated[bool, typer.Option(
@@ -57,9 +62,38 @@ def _emit_json(doc: dict[str, Any]) -> None:
     print(json.dumps(clean(doc), allow_nan=False))
 
 
+def _effect_names(incomplete: str) -> list[str]:
+    """Shell completion of effect names (the library's)."""
+    from rig.model.effects import BUILTIN
+
+    return [n for n in BUILTIN if n.startswith(incomplete)]
+
+
+class _Options:
+    """The global options (``rig -v``, ``rig -q``)."""
+
+    verbose = False
+    quiet = False
+
+
+options = _Options()
+
+
 def _fail(exc: Exception) -> typer.Exit:
-    err.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
-    return typer.Exit(code=2)
+    """The user's bad input (InputError): one line, exit 2. Anything else failed inside rig
+    or a library: one line and exit 1, the traceback with ``rig -v``."""
+    if isinstance(exc, InputError):
+        err.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
+        return typer.Exit(code=2)
+    if options.verbose:
+        import traceback
+
+        err.print("".join(traceback.format_exception(exc)), markup=False, highlight=False,
+                  soft_wrap=True)
+    hint = "" if options.verbose else " (`rig -v ...` shows the traceback)"
+    err.print(f"error: {type(exc).__name__}: {exc}{hint}", markup=False, highlight=False,
+              soft_wrap=True)
+    return typer.Exit(code=1)
 
 
 @app.command()
@@ -67,10 +101,11 @@ def simulate(
     profile: Annotated[Path, typer.Argument(help="force profile (YAML or CSV)")],
     out: Annotated[Path, typer.Option("--out", "-o", help="run file to write (.h5)")] = Path(
         "runs/simulated.h5"),
-    model: Annotated[Path | None, typer.Option(help="model YAML (parameters, effects)")] = None,
+    model: Annotated[Path | None, typer.Option(
+        "--model", "-m", help="model YAML (parameters, effects)")] = None,
     effect: Annotated[list[str] | None, typer.Option(
-        "--effect", "-e", help="add an effect (library name, module:Class or file.py:Class)")
-    ] = None,
+        "--effect", "-e", help="add an effect (library name, module:Class or file.py:Class)",
+        autocompletion=_effect_names)] = None,
     params: Annotated[Path | None, typer.Option(help="YAML of parameter overrides")] = None,
     duration: Annotated[float | None, typer.Option(help="simulated time, s")] = None,
     integrator: Annotated[str | None, typer.Option(
@@ -86,9 +121,7 @@ def simulate(
 
     try:
         refuse_existing(out, force)
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn(
-                "{task.fields[sim]}"), TimeElapsedColumn(), console=err if as_json else console,
-                transient=True) as bar:
+        with _bar(err if as_json else console) as bar:
             task = bar.add_task("preparing the model (compiled on first use: about a minute)",
                                 total=None, sim="")
             m = svc.build_model(model, effect or [], params, integrator, output_rate)
@@ -101,7 +134,7 @@ def simulate(
 
             result = svc.simulate(profile, out, m, duration=duration, force_limit=force_limit,
                                   on_stage=stage, progress=progress)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     s = result.summary()
     if as_json:
@@ -145,7 +178,7 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
 
     try:
         r = runfile.read(run)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     a = r.attrs
     if as_json:
@@ -252,14 +285,15 @@ def plot_cmd(
     try:
         quicklook.plot(run, target, trial=trial, channels=channel,
                        window=quicklook.parse_window(window), force=force)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     _plain(f"wrote {target}")
 
 
 @app.command("regulate")
 def regulate(
-    model: Annotated[Path | None, typer.Option(help="model YAML (parameters, effects)")] = None,
+    model: Annotated[Path | None, typer.Option(
+        "--model", "-m", help="model YAML (parameters, effects)")] = None,
     to: Annotated[Path | None, typer.Option(
         "--to", help="targets YAML (m), e.g. rig/data/regulation-targets.yaml")] = None,
     write: Annotated[Path | None, typer.Option(help="model YAML to write (with --to)")] = None,
@@ -275,9 +309,9 @@ def regulate(
 
     try:
         if write is not None and to is None:
-            raise ValueError("--write: needs --to targets.yaml")
+            raise InputError("--write: needs --to targets.yaml")
         if write is not None and write.exists() and not force:
-            raise ValueError(f"{write}: exists (use --force to overwrite)")
+            raise InputError(f"{write}: exists (use --force to overwrite)")
         m = ActionModel.from_yaml(model) if model else ActionModel()
         targets = regulation.load_targets(to) if to is not None else {}
         base = load_yaml_file(model) if model else None
@@ -286,7 +320,7 @@ def regulate(
             data = regulation.regulated_model_yaml(base, points, to)
         else:
             figures = regulation.measure(m)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for name, value in figures.items():
         target = targets.get(name, regulation.THESIS_TARGETS.get(name))
@@ -365,7 +399,7 @@ def run_profile(
 
     try:
         cfg, which = rig_config.resolve(rig)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     # ---- issue 18: --learn N, and the learned-feedforward record (rig.control.records) ----
     record = None
@@ -378,7 +412,7 @@ def run_profile(
         try:
             lrep = learn_svc.learn(profile, cfg, learn, out=out, lockstep=lockstep,
                                    on_line=_plain, use_learned=learned)
-        except (ValueError, RuntimeError) as exc:
+        except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
             raise _fail(exc) from None
         if lrep.record is None:
             raise typer.Exit(code=1)
@@ -386,7 +420,7 @@ def run_profile(
     if learned:
         try:
             record = _learned_record(profile, cfg)
-        except ValueError as exc:
+        except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
             raise _fail(exc) from None
     if record is not None:
         rec, rpath = record
@@ -401,7 +435,7 @@ def run_profile(
     except svc.RunStopped as exc:
         err.print(f"ABORTED: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1) from None
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     lat = report.lateness
     _plain(f"loop: {int(lat['cycles'])} cycles at {cfg.rates.control_hz:g} Hz, lateness "
@@ -460,7 +494,7 @@ def _rig_for_calibration(rig: Path | None):  # noqa: ANN202 - returns RigConfig
 
     try:
         cfg, which = rig_config.resolve(rig)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     _say(which)
     return cfg
@@ -497,7 +531,7 @@ def calibrate_loadcell(
                 rows = read_csv(points)
                 masses = [m for m, _ in rows]
                 pts = svc.loadcell_points(cfg, bench, masses, [r for _, r in rows], live)
-            except ValueError as exc:
+            except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
                 raise _fail(exc) from None
         else:
             _say(f"Place each mass on the key top, loading up to the largest and then "
@@ -512,7 +546,7 @@ def calibrate_loadcell(
                 try:
                     m = parse_mass(text, f"points[{len(masses) + 1}] mass")
                     if masses and m == masses[-1]:
-                        raise ValueError(f"points[{len(masses) + 1}] mass: same as the "
+                        raise InputError(f"points[{len(masses) + 1}] mass: same as the "
                                          f"previous point")
                 except ValueError as exc:
                     err.print(f"refused: {exc}", markup=False, highlight=False)
@@ -526,7 +560,7 @@ def calibrate_loadcell(
                      f"samples)")
             try:
                 pts = svc.loadcell_points(cfg, bench, masses, readings)
-            except ValueError as exc:
+            except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
                 raise _fail(exc) from None
     finally:
         bench.close()
@@ -534,7 +568,7 @@ def calibrate_loadcell(
 
     try:
         result = analyse(pts, cfg, s, degree)
-    except ValueError as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for line in svc.summary_loadcell(result):
         _say(line)
@@ -561,7 +595,7 @@ def calibrate_strain(
     try:
         result, path = svc.calibrate_strain(cfg, operator=operator, identifier=serial,
                                             folder=records_dir, shunt_ohm=shunt_ohm)
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for line in svc.summary_strain(result):
         _say(line)
@@ -586,7 +620,7 @@ def calibrate_motor(
     try:
         result, path, track = svc.calibrate_motor(cfg, operator=operator, folder=records_dir,
                                                   profile=profile)
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for line in svc.summary_motor(result, track):
         _say(line)
@@ -605,7 +639,7 @@ def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
                       "(about 4 s). Ready?", default=True, abort=True)
     try:
         result, path = svc.check_encoders(cfg, operator=operator, folder=records_dir)
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for name, r in result.results.items():
         _say(f"{name}: {'ok' if not r['problem'] else r['problem']} ({r['counts_range']:.0f} "
@@ -638,9 +672,62 @@ def _warn_unfinished(runs: list[Path]) -> None:
             err.print(text, markup=False, highlight=False, soft_wrap=True)
 
 
-def _bar() -> Progress:
+class _LineProgress:
+    """Progress as plain lines on stderr when stderr is not a terminal (pipes, logs,
+    notebooks): a line when the stage changes and at most one every ``every`` seconds;
+    nothing with ``rig -q``. The subset of rich's Progress the commands use."""
+
+    def __init__(self, every: float = 2.0, quiet: bool = False) -> None:
+        import time
+
+        self._clock = time.monotonic
+        self.every, self.quiet = every, quiet
+        self._tasks: dict[int, dict[str, Any]] = {}
+        self._last = -math.inf
+        self._t0 = self._clock()
+
+    def __enter__(self) -> _LineProgress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def add_task(self, description: str, total: float | None = None, **fields: Any) -> int:
+        k = len(self._tasks)
+        self._tasks[k] = {"description": description, "total": total, "completed": 0.0,
+                          **fields}
+        self._say(self._tasks[k], force=True)
+        return k
+
+    def update(self, task: int, **changes: Any) -> None:
+        t = self._tasks[task]
+        new_stage = "description" in changes and changes["description"] != t["description"]
+        t.update(changes)
+        self._say(t, force=new_stage)
+
+    def _say(self, t: dict[str, Any], force: bool) -> None:
+        now = self._clock()
+        if self.quiet or not (force or now - self._last >= self.every):
+            return
+        self._last = now
+        done = ""
+        if t.get("total"):
+            done = f" {100 * float(t['completed']) / float(t['total']):.0f} %"
+        extra = f" {t['sim']}" if t.get("sim") else ""
+        import sys
+
+        print(f"rig: {t['description']}{done}{extra} ({now - self._t0:.0f} s)",
+              file=sys.stderr, flush=True)
+
+
+def _bar(console_: Console | None = None) -> Any:
+    """The progress display: a bar on a terminal, plain lines on stderr off one, nothing
+    with -q."""
+    target = console_ or err
+    if options.quiet or not target.is_terminal:
+        return _LineProgress(quiet=options.quiet)
     return Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
-                    TimeElapsedColumn(), console=err, transient=True)
+                    TimeElapsedColumn(), console=target, transient=True)
 
 
 @app.command("compare")
@@ -671,7 +758,7 @@ def compare_cmd(
             bar.add_task("simulating the models against the run", total=None, sim="")
             comps = svc.compare(run, model or [], input=input, duration=duration, trials=trial,
                                 channels=channel, report_path=report)
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for comp in comps:
         console.print(cp.table(comp), markup=False, highlight=False, soft_wrap=True)
@@ -692,7 +779,8 @@ def diagnose_cmd(
                      ] = None,
     channel: Annotated[list[str] | None, typer.Option(help="use only these channels")] = None,
     candidate: Annotated[list[str] | None, typer.Option(
-        help="try only these library effects (default: all not in the model)")] = None,
+        help="try only these library effects (default: all not in the model)",
+        autocompletion=_effect_names)] = None,
     extra: Annotated[list[str] | None, typer.Option(
         help="also try a user effect (module:Class or file.py:Class)")] = None,
     jobs: Annotated[int | None, typer.Option(help="processes (default: one per core)")] = None,
@@ -723,7 +811,7 @@ def diagnose_cmd(
                                 jobs=jobs, single=single, backward=backward, write=write,
                                 report_path=report, scheduler=scheduler,
                                 progress=_analysis_progress(bar, task))
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     for line in diag.report_lines():
         console.print(line, markup=False, highlight=False, soft_wrap=True)
@@ -766,7 +854,7 @@ def fit_cmd(
             res = svc.fit(runs, model, param, input=input, duration=duration, channels=channel,
                           jobs=jobs, max_nfev=max_nfev, write=write, scheduler=scheduler,
                           progress=_analysis_progress(bar, task))
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     from rig.analysis.stats import fmt
 
@@ -817,7 +905,7 @@ def synth_cmd(
         made = svc.synth(model, profile, out, seed=seed, trials=trials, duration=duration,
                          rig=rig, load_cell_filter=load_cell_filter, noise_scale=noise_scale,
                          record_truth=record_truth)
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     chans = [c for c in made[0].channels if c != "time"]
     console.print(f"{len(made)} trial(s), channels {', '.join(chans)}", markup=False,
@@ -879,7 +967,7 @@ def sweep_cmd(
                               seed=seed, duration=duration, scheduler=scheduler, jobs=jobs,
                               resume=resume, force=force, report=report, batch=batch,
                               progress=progress, stop=lambda: stopping[0])
-    except (ValueError, RuntimeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     except (KeyboardInterrupt, SystemError) as exc:  # numba wraps a Ctrl-C in SystemError
         if not isinstance(exc, KeyboardInterrupt) and not stopping[0]:

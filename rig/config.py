@@ -54,7 +54,7 @@ class DriveOutput(_Strict):
     @model_validator(mode="after")
     def _range(self) -> DriveOutput:
         if not self.min_volts < self.max_volts:
-            raise ValueError(f"min_volts: expected less than max_volts ({self.max_volts:g} V), "
+            raise InputError(f"min_volts: expected less than max_volts ({self.max_volts:g} V), "
                              f"got {self.min_volts:g} V")
         return self
 
@@ -117,15 +117,15 @@ class Encoder(_Strict):
     @classmethod
     def _no_bool_sign(cls, v: Any) -> Any:
         if isinstance(v, bool):
-            raise ValueError(f"expected 1 or -1, got {v}")
+            raise InputError(f"expected 1 or -1, got {v}")
         return v
 
     @model_validator(mode="after")
     def _resolution(self) -> Encoder:
         if self.kind == "angular" and self.counts_per_rev is None:
-            raise ValueError("counts_per_rev: required for an angular encoder")
+            raise InputError("counts_per_rev: required for an angular encoder")
         if self.kind == "linear" and self.metres_per_count is None:
-            raise ValueError("metres_per_count: required for a linear encoder")
+            raise InputError("metres_per_count: required for a linear encoder")
         return self
 
     @property
@@ -175,21 +175,21 @@ class Channels(_Strict):
     @classmethod
     def _three(cls, v: dict[str, Encoder]) -> dict[str, Encoder]:
         if not v:
-            raise ValueError("expected at least one encoder")
+            raise InputError("expected at least one encoder")
         for key, enc in v.items():
             if not _NAME.fullmatch(key):
-                raise ValueError(f"{key!r}: expected an encoder name of letters, digits and _")
+                raise InputError(f"{key!r}: expected an encoder name of letters, digits and _")
             if not _NAME.fullmatch(enc.channel_name):
-                raise ValueError(f"channel {enc.channel_name!r} of encoder {key}: expected a "
+                raise InputError(f"channel {enc.channel_name!r} of encoder {key}: expected a "
                                  f"name of letters, digits and _")
             for own in (enc.channel_name, f"{key}_counts"):
                 if own in RESERVED_CHANNELS:
-                    raise ValueError(f"encoder {key} would write channel {own!r}, one of the "
+                    raise InputError(f"encoder {key} would write channel {own!r}, one of the "
                                      f"run's own channels (reserved: "
                                      f"{', '.join(sorted(RESERVED_CHANNELS))})")
         names = [e.channel_name for e in v.values()] + [f"{k}_counts" for k in v]
         if len(set(names)) != len(names):
-            raise ValueError(f"two encoders write the same channel: {names}")
+            raise InputError(f"two encoders write the same channel: {names}")
         return v
 
 
@@ -250,7 +250,7 @@ class Rates(_Strict):
     def _ratio(self) -> Rates:
         ratio = self.acquisition_hz / self.control_hz
         if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
-            raise ValueError("acquisition_hz: expected a whole multiple of control_hz")
+            raise InputError("acquisition_hz: expected a whole multiple of control_hz")
         return self
 
     @property

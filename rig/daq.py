@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from rig.config import RigConfig
+from rig.errors import InputError
 
 
 class DaqFault(RuntimeError):
@@ -101,13 +102,13 @@ def open_daq(config: RigConfig, *, lockstep: bool = False,
         from rig.ni_daq import NiDaq
 
         if lockstep:
-            raise ValueError("lockstep: only the simulated rig can run in lock-step")
+            raise InputError("lockstep: only the simulated rig can run in lock-step")
         return NiDaq(config)
     if config.backend == "sim":
         from rig.sim_backend.daq import SimDaq
 
         return SimDaq(config, lockstep=lockstep, on_line=on_line)
-    raise ValueError(f"backend: expected 'ni' or 'sim', got {config.backend!r}")
+    raise InputError(f"backend: expected 'ni' or 'sim', got {config.backend!r}")
 
 
 def open_reader(spec: dict[str, Any]) -> Reader:
@@ -121,4 +122,4 @@ def open_reader(spec: dict[str, Any]) -> Reader:
         from rig.sim_backend.daq import SimReader
 
         return SimReader(spec)
-    raise ValueError(f"backend: expected 'ni' or 'sim', got {backend!r}")
+    raise InputError(f"backend: expected 'ni' or 'sim', got {backend!r}")

@@ -15,6 +15,7 @@ import time
 import serial
 
 from rig.config import DriveLink
+from rig.errors import InputError
 
 
 class DriveError(RuntimeError):
@@ -32,14 +33,14 @@ class Drive:
                                         parity=serial.PARITY_NONE, stopbits=1,
                                         timeout=cfg.timeout_s, write_timeout=cfg.timeout_s)
         except serial.SerialException as exc:
-            raise ValueError(f"drive.port: cannot open {self.port!r} ({exc})") from None
+            raise InputError(f"drive.port: cannot open {self.port!r} ({exc})") from None
         self.lock = threading.Lock()
         self.enabled = False
 
     def command(self, text: str) -> str:
         """Send one command; the drive's answer without echo and prompt."""
         if not text or "\r" in text:
-            raise ValueError(f"text: expected one command without CR, got {text!r}")
+            raise InputError(f"text: expected one command without CR, got {text!r}")
         prompt = self.cfg.prompt.encode()
         with self.lock:
             self.serial.reset_input_buffer()

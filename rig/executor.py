@@ -28,6 +28,8 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any
 
+from rig.errors import InputError
+
 SCHEDULER_ENV = "RIG_SCHEDULER"
 
 # shared objects of the running maps, set before the fork so local workers inherit them
@@ -141,11 +143,11 @@ class DaskExecutor(Executor):
 
         if client is None:
             if not address:
-                raise ValueError("scheduler: expected an address such as tcp://host:8786")
+                raise InputError("scheduler: expected an address such as tcp://host:8786")
             try:
                 client = Client(address, timeout="10s")
             except OSError as exc:
-                raise ValueError(f"scheduler: cannot reach {address}: {exc}") from None
+                raise InputError(f"scheduler: cannot reach {address}: {exc}") from None
             self._own = True
         else:
             self._own = False

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.config import DriveOutput, DriveScaling, Limits
+from rig.errors import InputError
 from rig.profiles import Profile
 
 
@@ -41,7 +42,7 @@ class Limiter:
 
     def __init__(self, limits: Limits, dt: float) -> None:
         if not dt > 0:
-            raise ValueError(f"dt: expected a positive cycle time in s, got {dt}")
+            raise InputError(f"dt: expected a positive cycle time in s, got {dt}")
         self.max_force = limits.max_force_n
         self.max_step = limits.max_rate_n_per_s * dt
         self.last = 0.0
@@ -52,7 +53,7 @@ class Limiter:
     def __call__(self, demand: float) -> tuple[float, bool]:
         """The limited demand (N) and whether a limit acted."""
         if not math.isfinite(demand):
-            raise ValueError(f"demand: expected a finite force in N, got {demand}")
+            raise InputError(f"demand: expected a finite force in N, got {demand}")
         v = min(self.max_force, max(0.0, demand))
         v = min(self.last + self.max_step, max(self.last - self.max_step, v))
         self.last = v
@@ -64,16 +65,16 @@ def check_profile(profile: Profile, limits: Limits, advance_s: float = 0.0) -> N
     over = np.flatnonzero(profile.force > limits.max_force_n)
     if over.size:
         i = int(over[0])
-        raise ValueError(f"{profile.source}: points[{i}] force: {profile.force[i]:g} N is above "
+        raise InputError(f"{profile.source}: points[{i}] force: {profile.force[i]:g} N is above "
                          f"the rig's limits.max_force_n of {limits.max_force_n:g} N")
     rates = np.abs(np.diff(profile.force) / np.diff(profile.time))
     fast = np.flatnonzero(rates > limits.max_rate_n_per_s * (1 + 1e-9))
     if fast.size:
         i = int(fast[0]) + 1
-        raise ValueError(f"{profile.source}: points[{i}]: {rates[i - 1]:g} N/s is faster than the "
+        raise InputError(f"{profile.source}: points[{i}]: {rates[i - 1]:g} N/s is faster than the "
                          f"rig's limits.max_rate_n_per_s of {limits.max_rate_n_per_s:g} N/s")
     if advance_s < 0:
-        raise ValueError(f"advance_s: expected >= 0 s, got {advance_s}")
+        raise InputError(f"advance_s: expected >= 0 s, got {advance_s}")
 
 
 def feedforward(profile: Profile, t: float, advance_s: float) -> float:

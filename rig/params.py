@@ -22,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from rig.errors import InputError
+
 _DATA = resources.files("rig") / "data"
 
 
@@ -128,9 +130,9 @@ class Parameters:
         if isinstance(node, dict):
             key = self._dict_key(node, last)
             if key is None:
-                raise ValueError(f"parameter {path!r}: no such parameter")
+                raise InputError(f"parameter {path!r}: no such parameter")
             return node, key
-        raise ValueError(f"parameter {path!r}: no such parameter")
+        raise InputError(f"parameter {path!r}: no such parameter")
 
     @staticmethod
     def _dict_key(node: dict[Any, Any], part: str) -> Any:
@@ -147,14 +149,14 @@ class Parameters:
             key = self._dict_key(node, part)
             if key is not None:
                 return node[key]
-        raise ValueError(f"parameter {where!r}: no such parameter")
+        raise InputError(f"parameter {where!r}: no such parameter")
 
     @staticmethod
     def _contact_index(node: list[Any], part: str, where: str) -> int:
         for i, item in enumerate(node):
             if isinstance(item, dict) and str(item.get("id")) == part:
                 return i
-        raise ValueError(f"parameter {where!r}: no list entry with id {part}")
+        raise InputError(f"parameter {where!r}: no list entry with id {part}")
 
     def get(self, path: str) -> Any:
         node, key = self._locate(path)
@@ -173,20 +175,20 @@ class Parameters:
             return self
         if _is_number(old):
             if not _is_number(value) or not math.isfinite(float(value)):
-                raise ValueError(f"parameter {path!r}: expected a finite number, got {value!r}")
+                raise InputError(f"parameter {path!r}: expected a finite number, got {value!r}")
             node[key] = float(value)
         elif isinstance(old, list) and all(_is_number(v) for v in old):
             if not isinstance(value, list | tuple) or len(value) != len(old):
-                raise ValueError(f"parameter {path!r}: expected a list of {len(old)} numbers")
+                raise InputError(f"parameter {path!r}: expected a list of {len(old)} numbers")
             if not all(_is_number(v) and math.isfinite(float(v)) for v in value):
-                raise ValueError(f"parameter {path!r}: expected finite numbers, got {value!r}")
+                raise InputError(f"parameter {path!r}: expected finite numbers, got {value!r}")
             node[key] = [float(v) for v in value]
         elif isinstance(old, str):
             if not isinstance(value, str):
-                raise ValueError(f"parameter {path!r}: expected text, got {value!r}")
+                raise InputError(f"parameter {path!r}: expected text, got {value!r}")
             node[key] = value
         else:
-            raise ValueError(f"parameter {path!r}: is a group, set its members instead")
+            raise InputError(f"parameter {path!r}: is a group, set its members instead")
         return self
 
     def update(self, overrides: Mapping[str, Any], source: str = "overrides") -> Parameters:
@@ -195,7 +197,7 @@ class Parameters:
             try:
                 self.set(path, value)
             except ValueError as exc:
-                raise ValueError(f"{source}: {exc}") from None
+                raise InputError(f"{source}: {exc}") from None
         return self
 
     def update_from_file(self, path: str | Path) -> Parameters:
@@ -208,7 +210,7 @@ class Parameters:
         if data is None:
             return self
         if not isinstance(data, Mapping):
-            raise ValueError(f"{path}: expected a mapping of parameter overrides")
+            raise InputError(f"{path}: expected a mapping of parameter overrides")
         return self.update(data, source=str(path))
 
     def paths(self) -> Iterator[str]:

@@ -32,6 +32,7 @@ import h5py
 import numpy as np
 
 from rig import __version__
+from rig.errors import InputError
 
 FORMAT = "rig-run"
 FORMAT_VERSION = 1
@@ -106,7 +107,7 @@ def _column_scale(grp: h5py.Group, name: str, columns: Iterable[Any]) -> h5py.Da
         scale.attrs["long_name"] = f"column label of {name}"
         scale.make_scale(dim)
         return scale
-    raise ValueError(f"{grp.name}/{name}: no free name for its column scale")
+    raise InputError(f"{grp.name}/{name}: no free name for its column scale")
 
 
 def _attach_scales(grp: h5py.Group, name: str, ds: h5py.Dataset,
@@ -156,7 +157,7 @@ class TrialWriter:
         for name, values in data.items():
             arr = np.asarray(values, dtype=float)
             if name not in units:
-                raise ValueError(f"{section}/{name}: no units given")
+                raise InputError(f"{section}/{name}: no units given")
             width = arr.shape[1] if arr.ndim == 2 else None
             ds = self._dataset(section, name, units[name], (descriptions or {}).get(name, ""),
                                (columns or {}).get(name), width)
@@ -189,7 +190,7 @@ class RunWriter:
         last flush) when the writing process is killed; the newer format's consistency
         flags would make it unopenable without h5clear. Measured runs use it."""
         if kind not in KINDS:
-            raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+            raise InputError(f"kind: expected one of {KINDS}, got {kind!r}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.file = h5py.File(self.path, "w",
@@ -217,7 +218,7 @@ class RunWriter:
         self.file = h5py.File(self.path, "a")
         if self.file.attrs.get("format") != FORMAT:
             self.file.close()
-            raise ValueError(f"{path}: not a rig run file")
+            raise InputError(f"{path}: not a rig run file")
         return self
 
     def add_metadata(self, name: str, value: Any, fmt: str | None = None) -> None:
@@ -245,7 +246,7 @@ class RunWriter:
         if not self.file.id.valid:
             return
         if not (status == "complete" or status.startswith("aborted")):
-            raise ValueError(f"status: expected 'complete' or 'aborted: <reason>', got {status!r}")
+            raise InputError(f"status: expected 'complete' or 'aborted: <reason>', got {status!r}")
         self.file.attrs["status"] = status
         for name in self.file:
             if name.startswith("trial_") and self.file[name].attrs.get("status") == "running":
@@ -289,11 +290,11 @@ class Trial:
         import xarray as xr
 
         if section not in ("channels", "commands"):
-            raise ValueError(f"section: expected 'channels' or 'commands', got {section!r}")
+            raise InputError(f"section: expected 'channels' or 'commands', got {section!r}")
         data = self.channels if section == "channels" else self.commands
         prefix = "" if section == "channels" else "commands/"
         if "time" not in data:
-            raise ValueError(f"this trial has no {section} (no time base)")
+            raise InputError(f"this trial has no {section} (no time base)")
         t = np.asarray(data["time"], float)
 
         def attrs(name: str) -> dict[str, str]:
@@ -330,7 +331,7 @@ class Trial:
 
         data = self.channels if section == "channels" else self.commands
         if section not in ("channels", "commands") or "time" not in data:
-            raise ValueError(f"section: no {section!r} with a time base in this trial")
+            raise InputError(f"section: no {section!r} with a time base in this trial")
         cols: dict[str, np.ndarray] = {}
         for name, v in data.items():
             v = np.asarray(v)
@@ -386,14 +387,14 @@ def read(path: str | Path) -> Run:
     """Read a whole run file (any status), refusing files that are not run files."""
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{p}: file not found")
+        raise InputError(f"{p}: file not found")
     try:
         f = h5py.File(p, "r")
     except OSError as exc:
-        raise ValueError(f"{p}: not a readable HDF5 file ({exc})") from None
+        raise InputError(f"{p}: not a readable HDF5 file ({exc})") from None
     with f:
         if f.attrs.get("format") != FORMAT:
-            raise ValueError(f"{p}: not a rig run file (format attribute is "
+            raise InputError(f"{p}: not a rig run file (format attribute is "
                              f"{f.attrs.get('format')!r})")
         attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
         meta: dict[str, Any] = {}

@@ -4,6 +4,7 @@ user's file without --force (issue 15)."""
 from __future__ import annotations
 
 import hashlib
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -169,3 +170,58 @@ def test_fit_json_validates(tmp_path) -> None:
     doc = _validated(r.stdout, "rig.fit/1")
     assert [p["name"] for p in doc["parameters"]] == ["contacts.4.D"]
     assert doc["cost"] <= doc["cost_start"] and doc["write"] is None
+
+
+def test_an_internal_error_is_exit_1_with_the_traceback_under_v(tmp_path, monkeypatch) -> None:
+    """A library's ValueError inside rig is not the user's bad input: exit 1, one line that
+    names its type; ``rig -v`` adds the traceback. Bad input stays one line, exit 2."""
+    from rig.services import simulate as svc
+
+    def broken(*a, **k):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(svc, "simulate", broken)
+    out = tmp_path / "o.h5"
+    r = runner.invoke(app, ["simulate", str(FORTE), "--out", str(out), "--duration", "0.01"])
+    assert r.exit_code == 1
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("rig: ")]
+    assert lines == ["error: LinAlgError: Singular matrix (`rig -v ...` shows the traceback)"]
+    r = runner.invoke(app, ["-v", "simulate", str(FORTE), "--out", str(out)])
+    assert r.exit_code == 1 and "Traceback" in r.stderr and "in broken" in r.stderr
+    monkeypatch.undo()
+    r = runner.invoke(app, ["simulate", str(tmp_path / "none.yaml"), "--out", str(out)])
+    assert r.exit_code == 2 and "Traceback" not in r.stderr and not out.exists()
+
+
+def _piped(args: list[str]) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(Path(sys.executable).with_name("rig")), *args],
+                          capture_output=True, text=True, timeout=900)
+
+
+def test_progress_off_a_terminal_is_plain_lines_on_stderr_and_q_silences_it(tmp_path) -> None:
+    blow = tmp_path / "b.h5"
+    rig.simulate(FORTE, duration=0.03, out=blow)
+    args = ["diagnose", str(blow), "--candidate", "compliant_string", "--jobs", "1",
+            "--duration", "0.02"]
+    res = _piped(args)
+    assert res.returncode == 0, res.stderr
+    progress = [ln for ln in res.stderr.splitlines() if ln.startswith("rig: ")]
+    assert progress and progress[0].startswith("rig: fitting candidate effects")
+    assert "\x1b[" not in res.stderr  # no terminal control codes in a log
+    assert "rig: " not in res.stdout and "diagnosed in" in res.stdout
+    quiet = _piped(["-q", *args])
+    assert quiet.returncode == 0 and "rig: " not in quiet.stderr
+    assert quiet.stdout.splitlines()[0] == res.stdout.splitlines()[0]
+
+
+@pytest.mark.parametrize(("words", "cword", "expected"), [
+    ("rig sim", 1, ["simulate"]),
+    ("rig diagnose --cand", 2, ["--candidate"]),
+    ("rig simulate -e compl", 3, ["compliant_string"]),
+])
+def test_shell_completion_of_commands_options_and_effect_names(words, cword, expected) -> None:
+    env = {**os.environ, "_RIG_COMPLETE": "complete_bash", "COMP_WORDS": words,
+           "COMP_CWORD": str(cword)}
+    res = subprocess.run([str(Path(sys.executable).with_name("rig"))], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.stdout.split() == expected, res.stderr

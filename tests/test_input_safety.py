@@ -28,7 +28,8 @@ FORTE = ROOT / "profiles" / "forte.yaml"
 
 def _one_error_line(result, *parts: str) -> str:
     assert result.exit_code == 2, result.output
-    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    lines = [ln for ln in result.stderr.splitlines()  # progress lines ("rig: ...") aside
+             if ln.strip() and not ln.startswith("rig: ")]
     assert len(lines) == 1, lines
     for p in parts:
         assert p in lines[0], lines[0]

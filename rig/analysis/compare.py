@@ -25,6 +25,7 @@ import numpy as np
 
 from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
+from rig.errors import InputError
 from rig.model.action import EVENT_ORDER, ActionModel, SimResult
 
 PHASES: tuple[tuple[str, str | None, str | None], ...] = (
@@ -131,10 +132,10 @@ def prepare(meas: Measurement, input: str = "force", duration: float | None = No
         names = list(channels)
         for c in names:
             if c not in avail:
-                raise ValueError(f"channels: {c!r} is not a calibrated channel of "
+                raise InputError(f"channels: {c!r} is not a calibrated channel of "
                                  f"{meas.label} (it has {avail})")
     if not names:
-        raise ValueError(f"channels: {meas.label} has no channel to compare besides the input")
+        raise InputError(f"channels: {meas.label} has no channel to compare besides the input")
     rest = meas.rest_mask()
     measured = {}
     for c in names:
@@ -264,7 +265,7 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
             results: Sequence[SimResult] | None = None) -> Comparison:
     """Simulate each (label, model) under the trial's input and compare it with the trial."""
     if not models:
-        raise ValueError("models: expected at least one model")
+        raise InputError("models: expected at least one model")
     time, names, measured = prepare(meas, input, duration, channels)
     rel = {c: meas.relative(c) for c in names}
     sims = list(results) if results is not None else [

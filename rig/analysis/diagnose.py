@@ -61,6 +61,7 @@ from rig.analysis import measurement as ms
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis.measurement import Measurement
+from rig.errors import InputError
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect
 
@@ -173,7 +174,7 @@ class Diagnosis:
         """Share of the held-out error the candidate removes on these channels together."""
         names = [c for c in channels if c in self.base_error and c in candidate.test_error]
         if not names:
-            raise ValueError(f"channels: none of {list(channels)} was compared "
+            raise InputError(f"channels: none of {list(channels)} was compared "
                              f"(compared: {sorted(self.base_error)})")
         base = sum(self.base_error[c] for c in names)
         return 1 - sum(candidate.test_error[c] for c in names) / base if base > 0 else 0.0
@@ -268,10 +269,10 @@ def candidates_for(base: ActionModel, names: Sequence[str] | None = None,
         pool = []
         for n in names:
             if n not in BUILTIN:
-                raise ValueError(f"candidates: {n!r} is not in the effect library "
+                raise InputError(f"candidates: {n!r} is not in the effect library "
                                  f"({sorted(BUILTIN)})")
             if n in have:
-                raise ValueError(f"candidates: {n!r} is already in the model")
+                raise InputError(f"candidates: {n!r} is already in the model")
             pool.append(BUILTIN[n])
     pool += [c for c in extra if c.name not in have and c not in pool]
     return pool
@@ -455,9 +456,9 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     import time as _time
 
     if not measurements:
-        raise ValueError("measurements: expected at least one trial")
+        raise InputError("measurements: expected at least one trial")
     if held_out_test not in ("noise", "hac"):
-        raise ValueError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
+        raise InputError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
     wall0 = _time.perf_counter()
     notes: list[str] = []
     windows: list[float | None] | None = None
@@ -645,7 +646,7 @@ def write_model(base_yaml: Path | None, diagnosis: Diagnosis | Candidate, out: P
         final = diagnosis.final
         refs = {**diagnosis.refs, **(refs or {})}
         if final is None:
-            raise ValueError("write: no effect was chosen; nothing to write")
+            raise InputError("write: no effect was chosen; nothing to write")
         names = diagnosis.chosen_names
         gain = diagnosis.total_removal()
     else:
@@ -657,7 +658,7 @@ def write_model(base_yaml: Path | None, diagnosis: Diagnosis | Candidate, out: P
     if base_yaml is not None:
         loaded = yaml.safe_load(Path(base_yaml).read_text()) or {}
         if not isinstance(loaded, dict):
-            raise ValueError(f"{base_yaml}: expected a model mapping")
+            raise InputError(f"{base_yaml}: expected a model mapping")
         data = loaded
         base_dir = Path(base_yaml).resolve().parent
     out = Path(out)

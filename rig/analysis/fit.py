@@ -28,6 +28,7 @@ from scipy.optimize import least_squares
 from rig.analysis import compare as cp
 from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
+from rig.errors import InputError
 from rig.model.action import ActionModel
 from rig.model.effects import Effect
 from rig.model.integrators import Integrator
@@ -79,9 +80,9 @@ def _parse_bounds(text: str, name: str) -> tuple[float, float]:
         lo_s, hi_s = text.split(":")
         lo, hi = float(lo_s), float(hi_s)
     except ValueError:
-        raise ValueError(f"param: {name}: expected NAME=LO:HI bounds, got {text!r}") from None
+        raise InputError(f"param: {name}: expected NAME=LO:HI bounds, got {text!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-        raise ValueError(f"param: {name}: expected finite bounds LO < HI, got {text!r}")
+        raise InputError(f"param: {name}: expected finite bounds LO < HI, got {text!r}")
     return lo, hi
 
 
@@ -95,7 +96,7 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
         eff = effects[head]
         specs = {p.name: p for p in eff.parameters}
         if rest not in specs:
-            raise ValueError(f"param: {name}: effect {head} has no parameter {rest!r} "
+            raise InputError(f"param: {name}: effect {head} has no parameter {rest!r} "
                              f"(it has {sorted(specs)})")
         p = specs[rest]
         lo, hi = _parse_bounds(bounds, name) if bounds else p.bounds
@@ -105,11 +106,11 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
     try:
         v0 = model.params.get(name)
     except (KeyError, ValueError, TypeError):
-        raise ValueError(f"param: {name}: not a model parameter path (e.g. contacts.4.D) nor "
+        raise InputError(f"param: {name}: not a model parameter path (e.g. contacts.4.D) nor "
                          f"an effect parameter of this model (e.g. "
                          f"{next(iter(effects), 'flexible_shank')}.<name>)") from None
     if isinstance(v0, bool) or not isinstance(v0, int | float):
-        raise ValueError(f"param: {name}: expected a numeric parameter, got {v0!r}")
+        raise InputError(f"param: {name}: expected a numeric parameter, got {v0!r}")
     v0 = float(v0)
     if bounds:
         lo, hi = _parse_bounds(bounds, name)
@@ -118,7 +119,7 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
     elif v0 < 0:
         lo, hi = v0 * 20, v0 / 20
     else:
-        raise ValueError(f"param: {name} is 0; give bounds as {name}=LO:HI")
+        raise InputError(f"param: {name} is 0; give bounds as {name}=LO:HI")
     return Target(name, None, name, min(max(v0, lo), hi), lo, hi)
 
 
@@ -146,7 +147,7 @@ def rebuild(base: ActionModel, add: Sequence[Effect | type[Effect]] = (),
             params.set(t.key, v)
         else:
             if t.effect not in by_name:
-                raise ValueError(f"param: {t.label}: effect {t.effect} is not in the model")
+                raise InputError(f"param: {t.label}: effect {t.effect} is not in the model")
             by_name[t.effect].set(t.key, v)
     integrator: Integrator | None = base.integrator
     if any(e.runs_in_python() for e in effects) and \
@@ -195,7 +196,7 @@ class Data:
         times, names, meas, ranges, noise = [], [], [], [], []
         wins = list(windows) if windows is not None else [duration] * len(measurements)
         if len(wins) != len(measurements):
-            raise ValueError(f"windows: expected {len(measurements)}, got {len(wins)}")
+            raise InputError(f"windows: expected {len(measurements)}, got {len(wins)}")
         for m, w in zip(measurements, wins, strict=True):
             t, n, d = cp.prepare(m, input, w, channels)
             times.append(t)
@@ -353,10 +354,10 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
     extra = [a if isinstance(a, Effect) else a() for a in add]
     targets = [s if isinstance(s, Target) else target(base, s, extra) for s in specs]
     if not targets:
-        raise ValueError("param: expected at least one parameter to fit")
+        raise InputError("param: expected at least one parameter to fit")
     labels = [t.label for t in targets]
     if len(set(labels)) != len(labels):
-        raise ValueError(f"param: each parameter may appear once, got {labels}")
+        raise InputError(f"param: each parameter may appear once, got {labels}")
     rate = data.measurements[0].rate
 
     def values_of(u: np.ndarray) -> dict[str, float]:

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from rig import profiles, runfile
+from rig.errors import InputError
 from rig.model.action import ActionModel, SimResult
 
 INPUTS = ("force", "command", "motion")
@@ -91,17 +92,17 @@ def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurem
     """The trials of a run file as measurements (all of them by default)."""
     run = runfile.read(path)
     if not run.trials:
-        raise ValueError(f"{path}: the run file holds no trial")
+        raise InputError(f"{path}: the run file holds no trial")
     picks = range(len(run.trials)) if trials is None else trials
     out = []
     for i in picks:
         if not 0 <= i < len(run.trials):
-            raise ValueError(f"trials: {i} is not a trial of {path} (it has {len(run.trials)})")
+            raise InputError(f"trials: {i} is not a trial of {path} (it has {len(run.trials)})")
         tr = run.trials[i]
         if "time" not in tr.channels or tr.channels["time"].size < 20:
-            raise ValueError(f"{path}: trial {i} has no time channel or too few samples")
+            raise InputError(f"{path}: trial {i} has no time channel or too few samples")
         if "force" not in tr.channels:
-            raise ValueError(f"{path}: trial {i} has no force channel")
+            raise InputError(f"{path}: trial {i} has no force channel")
         ev = {k: v for k, v in tr.events.items() if math.isfinite(v)}
         out.append(Measurement(np.asarray(tr.channels["time"], float),
                                {k: np.asarray(v, float) for k, v in tr.channels.items()},
@@ -147,7 +148,7 @@ def force_profile(meas: Measurement, duration: float,
     keep = (t >= 0) & (t <= duration + 1.5 / meas.rate)
     tt, ff = t[keep], f[keep]
     if tt.size < 2:
-        raise ValueError(f"{meas.label}: fewer than two force samples after t = 0")
+        raise InputError(f"{meas.label}: fewer than two force samples after t = 0")
     if tt[0] > 0:
         tt = np.r_[0.0, tt]
         ff = np.r_[float(np.interp(0.0, t, f)), ff]
@@ -160,7 +161,7 @@ def command_profile(meas: Measurement, duration: float) -> profiles.Profile:
     t = meas.commands.get("time")
     d = meas.commands.get("demand")
     if t is None or d is None or len(t) < 2:
-        raise ValueError(f"input: {meas.label} has no commands/demand; use input 'force'")
+        raise InputError(f"input: {meas.label} has no commands/demand; use input 'force'")
     keep = t >= 0
     t, d = np.asarray(t[keep], float), np.clip(np.asarray(d[keep], float), 0.0, None)
     eps = 1e-6 * float(np.median(np.diff(t)))
@@ -182,10 +183,10 @@ def simulate(model: ActionModel, meas: Measurement, input: str = "force",
     (feed-forward: the measured force), so the model's force is an output.
     """
     if input not in INPUTS:
-        raise ValueError(f"input: expected one of {INPUTS}, got {input!r}")
+        raise InputError(f"input: expected one of {INPUTS}, got {input!r}")
     dur = meas.duration if duration is None else min(float(duration), meas.duration)
     if not dur > 0:
-        raise ValueError(f"duration: expected a positive time in s, got {duration}")
+        raise InputError(f"duration: expected a positive time in s, got {duration}")
     m = at_rate(model, meas.rate)
     if input == "motion":
         return _simulate_motion(m, meas, dur)
@@ -196,7 +197,7 @@ def simulate(model: ActionModel, meas: Measurement, input: str = "force",
 def _simulate_motion(model: ActionModel, meas: Measurement, duration: float,
                      bandwidth_hz: float = 150.0, mass_kg: float = 0.05) -> SimResult:
     if "key_dip" not in meas.channels:
-        raise ValueError(f"input: motion needs a key_dip channel in {meas.label}")
+        raise InputError(f"input: motion needs a key_dip channel in {meas.label}")
     rest = meas.rest_mask()
     dip = meas.channels["key_dip"] - float(np.mean(meas.channels["key_dip"][rest]))
     w = 2 * math.pi * bandwidth_hz

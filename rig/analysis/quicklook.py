@@ -17,6 +17,7 @@ import numpy as np
 
 from rig import runfile
 from rig.analysis import plots as pl
+from rig.errors import InputError
 
 
 def parse_window(text: str | None) -> tuple[float, float] | None:
@@ -30,19 +31,19 @@ def parse_window(text: str | None) -> tuple[float, float] | None:
         a = float(lo) if lo.strip() else -math.inf
         b = float(hi) if hi.strip() else math.inf
     except ValueError:
-        raise ValueError(f"window: expected START:END in seconds (e.g. 0.05:0.09), got "
+        raise InputError(f"window: expected START:END in seconds (e.g. 0.05:0.09), got "
                          f"{text!r}") from None
     if not a < b:
-        raise ValueError(f"window: START must be before END, got {text!r}")
+        raise InputError(f"window: START must be before END, got {text!r}")
     return a, b
 
 
 def _trial(run: runfile.Run, k: int) -> runfile.Trial:
     if not 0 <= k < len(run.trials):
-        raise ValueError(f"trial: {k} is not a trial of {run.path} (it has {len(run.trials)})")
+        raise InputError(f"trial: {k} is not a trial of {run.path} (it has {len(run.trials)})")
     tr = run.trials[k]
     if "time" not in tr.channels or tr.channels["time"].size < 2:
-        raise ValueError(f"{run.path}: trial {k} has no time channel")
+        raise InputError(f"{run.path}: trial {k} has no time channel")
     return tr
 
 
@@ -53,7 +54,7 @@ def channels_of(tr: runfile.Trial, names: Sequence[str] | None) -> list[str]:
         return pl.pick_channels(one_d)
     for n in names:
         if n not in tr.channels or n == "time":
-            raise ValueError(f"channel: {n!r} is not a channel of this trial (it has "
+            raise InputError(f"channel: {n!r} is not a channel of this trial (it has "
                              f"{sorted(c for c in tr.channels if c != 'time')})")
     return list(names)
 
@@ -75,9 +76,9 @@ def plot(path: str | Path, out: str | Path, *, trial: int = 0,
     out = Path(out)
     suffix = out.suffix.lower()
     if suffix not in (".html", ".htm", ".png"):
-        raise ValueError(f"out: expected a .html or .png path, got {out}")
+        raise InputError(f"out: expected a .html or .png path, got {out}")
     if out.exists() and not force:
-        raise ValueError(f"out: {out} exists (use --force to replace it)")
+        raise InputError(f"out: {out} exists (use --force to replace it)")
     run = runfile.read(path)
     tr = _trial(run, trial)
     names = channels_of(tr, channels)
@@ -85,7 +86,7 @@ def plot(path: str | Path, out: str | Path, *, trial: int = 0,
     lo, hi = window if window is not None else (-math.inf, math.inf)
     mask = (t >= lo) & (t <= hi)
     if mask.sum() < 2:
-        raise ValueError(f"window: no samples of trial {trial} in {lo:g}:{hi:g} s (the trial "
+        raise InputError(f"window: no samples of trial {trial} in {lo:g}:{hi:g} s (the trial "
                          f"spans {t[0]:g} to {t[-1]:g} s)")
     tw = t[mask]
     events = {k: v for k, v in tr.events.items() if math.isfinite(v)}
@@ -107,7 +108,7 @@ def figure(tr: runfile.Trial, channels: Sequence[str] | None = None,
     lo, hi = window if window is not None else (-math.inf, math.inf)
     mask = (t >= lo) & (t <= hi)
     if mask.sum() < 2:
-        raise ValueError(f"window: no samples in {lo:g}:{hi:g} s (the trial spans {t[0]:g} "
+        raise InputError(f"window: no samples in {lo:g}:{hi:g} s (the trial spans {t[0]:g} "
                          f"to {t[-1]:g} s)")
     events = {k: v for k, v in tr.events.items() if math.isfinite(v)}
     return _figure(tr, names, mask, t[mask], events, title)

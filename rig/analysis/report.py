@@ -30,6 +30,7 @@ import numpy as np
 from rig.analysis import compare as cp
 from rig.analysis import plots as pl
 from rig.analysis.compare import Comparison
+from rig.errors import InputError
 
 DATA_LABEL = {"measured": "measured", "synthetic": "synthetic measurement",
               "simulated": "simulated run file"}
@@ -363,10 +364,10 @@ def write(comps: Comparison | Sequence[Comparison], out: Path, title: str = "rig
     """
     out = Path(out)
     if out.suffix.lower() not in (".html", ".htm"):
-        raise ValueError(f"report: expected an .html path, got {out}")
+        raise InputError(f"report: expected an .html path, got {out}")
     comp_list = [comps] if isinstance(comps, Comparison) else list(comps)
     if not comp_list:
-        raise ValueError("report: no comparison to show")
+        raise InputError("report: no comparison to show")
     kind = provenance.kind if provenance is not None else "measured"
     dl = _data_label(kind)
     p = _Page()

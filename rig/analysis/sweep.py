@@ -29,6 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from rig.errors import InputError
 from rig.executor import Executor
 
 DESIGNS = ("grid", "lhs", "sobol")
@@ -53,9 +54,9 @@ class Axis:
             lo_s, hi_s = bounds.split(":")
             lo, hi = float(lo_s), float(hi_s)
         except ValueError:
-            raise ValueError(f"param: {spec!r}: expected NAME=LOW:HIGH") from None
+            raise InputError(f"param: {spec!r}: expected NAME=LOW:HIGH") from None
         if not name or not sep or not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ValueError(f"param: {spec!r}: expected NAME=LOW:HIGH with finite LOW < HIGH")
+            raise InputError(f"param: {spec!r}: expected NAME=LOW:HIGH with finite LOW < HIGH")
         return cls(name, lo, hi)
 
 
@@ -171,11 +172,11 @@ def make_design(kind: str, axes: Sequence[Axis], samples: int, seed: int = 0) ->
     """Rows of parameter values: grid (samples per axis), lhs (samples rows) or sobol
     (Saltelli's scheme, samples * (k + 2) rows; samples a power of 2)."""
     if kind not in DESIGNS:
-        raise ValueError(f"design: expected one of {', '.join(DESIGNS)}, got {kind!r}")
+        raise InputError(f"design: expected one of {', '.join(DESIGNS)}, got {kind!r}")
     if not axes:
-        raise ValueError("param: expected at least one NAME=LOW:HIGH")
+        raise InputError("param: expected at least one NAME=LOW:HIGH")
     if samples < 2:
-        raise ValueError(f"samples: expected at least 2, got {samples}")
+        raise InputError(f"samples: expected at least 2, got {samples}")
     lo = np.array([a.lo for a in axes])
     hi = np.array([a.hi for a in axes])
     if kind == "grid":
@@ -186,7 +187,7 @@ def make_design(kind: str, axes: Sequence[Axis], samples: int, seed: int = 0) ->
 
         return lo + qmc.LatinHypercube(d=len(axes), seed=seed).random(samples) * (hi - lo)
     if samples & (samples - 1):
-        raise ValueError(f"samples: the sobol design needs a power of 2, got {samples}")
+        raise InputError(f"samples: the sobol design needs a power of 2, got {samples}")
     from SALib.sample import sobol as sobol_sample
 
     return np.asarray(sobol_sample.sample(_problem(axes), samples, calc_second_order=False,
@@ -245,7 +246,7 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
     interrupted with every result so far)."""
     out = Path(out)
     if batch < 1:
-        raise ValueError(f"batch: expected at least 1, got {batch}")
+        raise InputError(f"batch: expected at least 1, got {batch}")
     X = make_design(kind, axes, samples, seed)
     ident = _identity(study, axes, kind, samples, seed)
     if out.exists() and resume:
@@ -253,12 +254,12 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
             with h5py.File(out, "r") as f:
                 old = str(f.attrs.get("identity", ""))
         except OSError:
-            raise ValueError(f"out: {out} is not a sweep file (cannot --resume it)") from None
+            raise InputError(f"out: {out} is not a sweep file (cannot --resume it)") from None
         if old != ident:
-            raise ValueError(f"out: {out} holds a different sweep (design, parameters, model "
+            raise InputError(f"out: {out} holds a different sweep (design, parameters, model "
                              "or profile differ); use another --out or --force")
     elif out.exists() and not force:
-        raise ValueError(f"out: {out} exists; use --resume to continue it or --force to "
+        raise InputError(f"out: {out} exists; use --resume to continue it or --force to "
                          "replace it")
     else:
         _create(out, study, axes, kind, samples, seed, X, ident)
@@ -298,7 +299,7 @@ def run_sweep(study: Study, axes: Sequence[Axis], kind: str, samples: int, out: 
             for j, batch_values in results:
                 for i, values in zip(groups[j], batch_values, strict=True):
                     if len(values) != len(study.metrics):
-                        raise ValueError(f"the blow returned {len(values)} values for "
+                        raise InputError(f"the blow returned {len(values)} values for "
                                          f"{len(study.metrics)} metrics")
                     pending[int(i)] = values
                     n += 1
@@ -358,13 +359,13 @@ def sensitivity(path: Path, seed: int = 0) -> Sensitivity:
 
     with h5py.File(path, "r") as f:
         if f.attrs.get("design") != "sobol":
-            raise ValueError(f"{path}: Sobol indices need a sobol design "
+            raise InputError(f"{path}: Sobol indices need a sobol design "
                              f"(this one is {f.attrs.get('design')})")
         params = [str(p) for p in f.attrs["params"]]
         metrics = [str(m) for m in f.attrs["metrics"]]
         t = f["table"]
         if not t["done"][:].all():
-            raise ValueError(f"{path}: the sweep is not complete; run it again with --resume")
+            raise InputError(f"{path}: the sweep is not complete; run it again with --resume")
         bounds = [[float(t[p].attrs["low"]), float(t[p].attrs["high"])] for p in params]
         Y = {m: t[m][:] for m in metrics}
     problem = {"num_vars": len(params), "names": params, "bounds": bounds}

@@ -26,6 +26,7 @@ import numpy as np
 from rig import calrecords, encoders, loadcell, profiles, runfile, strain
 from rig import config as rig_config
 from rig.config import RigConfig
+from rig.errors import InputError
 from rig.model.action import ActionModel, SimResult
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet
@@ -70,10 +71,10 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
                 noise_scale: float = 1.0) -> SynthTrial:
     """One trial of the truth model through the drive and sensor models."""
     if noise_scale < 0:
-        raise ValueError(f"noise_scale: expected >= 0, got {noise_scale}")
+        raise InputError(f"noise_scale: expected >= 0, got {noise_scale}")
     dur = profile.duration if duration is None else float(duration)
     if not dur > 0:
-        raise ValueError(f"duration: expected a positive time in s, got {duration}")
+        raise InputError(f"duration: expected a positive time in s, got {duration}")
     rate = cfg.rates.acquisition_hz
     n_per = cfg.rates.samples_per_cycle
     tc, dem = demand(profile, cfg, dur)
@@ -115,7 +116,7 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
         if enc.kind == "linear":
             true = res.channels["key_dip"] if enc.body == "key" else None
             if true is None:
-                raise ValueError(f"channels.encoders.{name}: synth measures linear motion "
+                raise InputError(f"channels.encoders.{name}: synth measures linear motion "
                                  f"only on the key")
             rest = 0.0
         else:
@@ -137,9 +138,9 @@ def synth(truth: ActionModel, profile_list: Sequence[profiles.Profile], out: Pat
           truth_source: str = "") -> list[SynthTrial]:
     """Write a synthetic run file: ``trials`` repetitions of each profile (fresh noise each)."""
     if trials < 1:
-        raise ValueError(f"trials: expected at least 1, got {trials}")
+        raise InputError(f"trials: expected at least 1, got {trials}")
     if not profile_list:
-        raise ValueError("profile: expected at least one profile")
+        raise InputError("profile: expected at least one profile")
     cfg = cfg or default_rig()
     made: list[SynthTrial] = []
     meta: dict[str, Any] = {

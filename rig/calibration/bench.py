@@ -22,6 +22,7 @@ import numpy as np
 
 from rig import strain as strain_mod
 from rig.config import RigConfig
+from rig.errors import InputError
 
 Live = Callable[[float], None] | None
 BRIDGES = ("load_cell", "strain_gauge")
@@ -29,7 +30,7 @@ BRIDGES = ("load_cell", "strain_gauge")
 
 def _check_bridge(sensor: str) -> None:
     if sensor not in BRIDGES:
-        raise ValueError(f"sensor: expected one of {BRIDGES}, got {sensor!r}")
+        raise InputError(f"sensor: expected one of {BRIDGES}, got {sensor!r}")
 
 
 def bridge_range(cfg: RigConfig, sensor: str) -> float:
@@ -46,7 +47,7 @@ def shunt_equivalent_strain(gauge_ohm: float, gage_factor: float, shunt_ohm: flo
     for name, v in (("gauge_ohm", gauge_ohm), ("gage_factor", gage_factor),
                     ("shunt_ohm", shunt_ohm)):
         if not v > 0:
-            raise ValueError(f"{name}: expected a positive value, got {v}")
+            raise InputError(f"{name}: expected a positive value, got {v}")
     return -gauge_ohm / (gage_factor * (gauge_ohm + shunt_ohm))
 
 
@@ -124,7 +125,7 @@ class SimBench(Bench):
             else:
                 sg = self.sensors.strain_gauge
                 if sg is None:
-                    raise RuntimeError("channels.strain_gauge.enabled is false on this rig")
+                    raise InputError("channels.strain_gauge.enabled is false on this rig")
                 g = self.cfg.channels.strain_gauge
                 e = shunt_equivalent_strain(g.nominal_resistance_ohm, g.gage_factor,
                                             self.shunt_resistor) if self.shunt_on else 0.0
@@ -145,7 +146,7 @@ class SimBench(Bench):
 
     def shunt(self, sensor: str, on: bool, resistor_ohm: float) -> None:
         if sensor != "strain_gauge":
-            raise ValueError(f"sensor: the simulated bench shunts only the strain gauge, "
+            raise InputError(f"sensor: the simulated bench shunts only the strain gauge, "
                              f"got {sensor!r}")
         self.shunt_on = bool(on)
         self.shunt_resistor = float(resistor_ohm)
@@ -355,4 +356,4 @@ def open_bench(cfg: RigConfig) -> Bench:
         return SimBench(cfg)
     if cfg.backend == "ni":
         return NiBench(cfg)
-    raise ValueError(f"backend: expected 'ni' or 'sim', got {cfg.backend!r}")
+    raise InputError(f"backend: expected 'ni' or 'sim', got {cfg.backend!r}")

@@ -34,6 +34,7 @@ import numpy as np
 from rig.calibration.bench import Bench, bridge_range
 from rig.calibration.settings import LoadCellCal
 from rig.config import RigConfig
+from rig.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -55,9 +56,9 @@ def parse_mass(text: str | float, where: str = "mass") -> float:
     try:
         m = float(text)
     except (TypeError, ValueError):
-        raise ValueError(f"{where}: expected a number in kg, got {text!r}") from None
+        raise InputError(f"{where}: expected a number in kg, got {text!r}") from None
     if not math.isfinite(m) or m < 0:
-        raise ValueError(f"{where}: expected a mass >= 0 kg, got {text!r}")
+        raise InputError(f"{where}: expected a mass >= 0 kg, got {text!r}")
     return m
 
 
@@ -69,7 +70,7 @@ def directions(masses: Sequence[float]) -> list[tuple[str, int]]:
         if i:
             prev = masses[i - 1]
             if m == prev:
-                raise ValueError(f"points[{i + 1}] mass: {m:g} kg repeats point {i}; change the "
+                raise InputError(f"points[{i + 1}] mass: {m:g} kg repeats point {i}; change the "
                                  f"mass between points")
             if d == "load" and m < prev:
                 d = "unload"
@@ -86,11 +87,11 @@ def read_csv(path: Path) -> list[tuple[float, float | None]]:
     try:
         text = p.read_text()
     except OSError as exc:
-        raise ValueError(f"{p}: cannot read the points file ({exc.strerror})") from None
+        raise InputError(f"{p}: cannot read the points file ({exc.strerror})") from None
     rows = list(csv.DictReader(line for line in text.splitlines()
                                if line.strip() and not line.lstrip().startswith("#")))
     if not rows or "mass_kg" not in rows[0]:
-        raise ValueError(f"{p}: expected a header with mass_kg (and optionally "
+        raise InputError(f"{p}: expected a header with mass_kg (and optionally "
                          f"reading_mv_per_v)")
     out: list[tuple[float, float | None]] = []
     for i, row in enumerate(rows, start=1):
@@ -100,7 +101,7 @@ def read_csv(path: Path) -> list[tuple[float, float | None]]:
             try:
                 reading: float | None = float(r) * 1e-3
             except ValueError:
-                raise ValueError(f"{p.name}: row {i} reading_mv_per_v: expected a number in "
+                raise InputError(f"{p.name}: row {i} reading_mv_per_v: expected a number in "
                                  f"mV/V, got {r!r}") from None
         else:
             reading = None
@@ -131,15 +132,15 @@ def validate(points: Sequence[LoadPoint], cfg: RigConfig, s: LoadCellCal) -> Non
     fs = cfg.channels.load_cell.full_scale_n
     distinct = sorted({p.mass_kg for p in points})
     if len(distinct) < s.min_points:
-        raise ValueError(f"points: too few: {len(distinct)} distinct masses, at least "
+        raise InputError(f"points: too few: {len(distinct)} distinct masses, at least "
                          f"{s.min_points} needed (loading then unloading across the range)")
     if not any(p.direction == "unload" for p in points):
-        raise ValueError("points: no unloading points: after the largest mass, take the "
+        raise InputError("points: no unloading points: after the largest mass, take the "
                          "masses off again one by one (hysteresis needs them)")
     rng = bridge_range(cfg, "load_cell")
     for p in points:
         if p.peak_abs_v_per_v >= s.saturation_fraction * rng:
-            raise ValueError(f"points[{p.index}] ({p.mass_kg:g} kg): the bridge is saturated "
+            raise InputError(f"points[{p.index}] ({p.mass_kg:g} kg): the bridge is saturated "
                              f"({p.peak_abs_v_per_v * 1e3:.3f} mV/V against the channel's "
                              f"+-{rng * 1e3:g} mV/V range): use smaller masses or a wider "
                              f"input_range_mv_per_v")
@@ -148,14 +149,14 @@ def validate(points: Sequence[LoadPoint], cfg: RigConfig, s: LoadCellCal) -> Non
             continue
         rising = b.mass_kg > a.mass_kg
         if (b.ratio_v_per_v > a.ratio_v_per_v) != rising:
-            raise ValueError(
+            raise InputError(
                 f"points[{b.index}] ({b.mass_kg:g} kg, {b.direction}): non-monotonic reading: "
                 f"{b.ratio_v_per_v * 1e3:.5f} mV/V is not {'above' if rising else 'below'} "
                 f"point {a.index}'s {a.ratio_v_per_v * 1e3:.5f} mV/V at {a.mass_kg:g} kg "
                 f"(wrong mass entered, a mass touching something, or a loose cell?)")
     span = (distinct[-1] - distinct[0]) * s.gravity_m_s2
     if span < s.min_span_fraction * fs:
-        raise ValueError(f"points: the masses span {span:.1f} N, less than "
+        raise InputError(f"points: the masses span {span:.1f} N, less than "
                          f"{s.min_span_fraction * 100:g} % of the {fs:g} N full scale")
 
 
@@ -187,18 +188,18 @@ def analyse(points: Sequence[LoadPoint], cfg: RigConfig, s: LoadCellCal,
             degree: int = 1) -> LoadCellResult:
     """Validate, fit and assess the points (nothing is written here)."""
     if degree < 1 or degree > 3:
-        raise ValueError(f"degree: expected 1 (linear, the default) to 3, got {degree}")
+        raise InputError(f"degree: expected 1 (linear, the default) to 3, got {degree}")
     validate(points, cfg, s)
     fs = cfg.channels.load_cell.full_scale_n
     g = s.gravity_m_s2
     x = np.array([p.ratio_v_per_v for p in points]) * 1e3          # mV/V
     f = np.array([p.mass_kg for p in points]) * g                   # N
     if x.size < degree + 2:
-        raise ValueError(f"points: too few for a degree-{degree} fit: {x.size}")
+        raise InputError(f"points: too few for a degree-{degree} fit: {x.size}")
     coef, cov, s_res = _lstsq(x, f, 1)
     c0, c1 = float(coef[0]), float(coef[1])
     if not c1 > 0:
-        raise ValueError(f"points: the fitted scale is {c1:.4g} N per mV/V: the bridge reads "
+        raise InputError(f"points: the fitted scale is {c1:.4g} N per mV/V: the bridge reads "
                          f"less under more mass (wired backwards?)")
     chosen, chosen_cov, chosen_s = (coef, cov, s_res) if degree == 1 else _lstsq(x, f, degree)
     residuals = f - np.vander(x, degree + 1, increasing=True) @ chosen

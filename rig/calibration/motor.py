@@ -33,6 +33,7 @@ from rig import loadcell as loadcell_mod
 from rig.calibration.bench import Bench
 from rig.calibration.settings import MotorCal
 from rig.config import RigConfig
+from rig.errors import InputError
 from rig.profiles import Profile
 
 UNITS = {"raw": "N (demand)", "calibrated": "N", "sensitivity": "N per N of demand",
@@ -51,11 +52,11 @@ class MotorCompensation:
     def __post_init__(self) -> None:
         d, f = np.asarray(self.map_demand_n), np.asarray(self.map_force_n)
         if d.size < 2 or d.size != f.size:
-            raise ValueError("map: expected two or more (demand, force) pairs of equal length")
+            raise InputError("map: expected two or more (demand, force) pairs of equal length")
         if np.any(np.diff(d) <= 0) or np.any(np.diff(f) <= 0):
-            raise ValueError("map: demand and force must both increase (a monotonic map)")
+            raise InputError("map: demand and force must both increase (a monotonic map)")
         if not 0 <= self.lag_s <= 0.1:
-            raise ValueError(f"lag_s: expected 0 to 0.1 s, got {self.lag_s}")
+            raise InputError(f"lag_s: expected 0 to 0.1 s, got {self.lag_s}")
 
     @classmethod
     def identity(cls, lag_s: float) -> MotorCompensation:
@@ -106,7 +107,7 @@ def sequence(cfg: RigConfig, s: MotorCal) -> tuple[np.ndarray, list[dict[str, An
     top = min(max(s.step_levels_n), cfg.limits.max_force_n)
     levels = [lv for lv in s.step_levels_n if 0 < lv <= cfg.limits.max_force_n]
     if len(levels) < 3:
-        raise ValueError(f"calibration.motor.step_levels_n: expected 3 or more levels in "
+        raise InputError(f"calibration.motor.step_levels_n: expected 3 or more levels in "
                          f"(0, {cfg.limits.max_force_n:g}] N, got {s.step_levels_n}")
     max_step = cfg.limits.max_rate_n_per_s / hz
     parts: list[np.ndarray] = [np.zeros(int(0.1 * hz))]
@@ -166,7 +167,7 @@ def analyse(cfg: RigConfig, demand: np.ndarray, segs: list[dict[str, Any]], forc
     spc = cfg.rates.samples_per_cycle
     rate = cfg.rates.acquisition_hz
     if force.size != demand.size * spc or not np.all(np.isfinite(force)):
-        raise ValueError(f"force: expected {demand.size * spc} finite samples, got "
+        raise InputError(f"force: expected {demand.size * spc} finite samples, got "
                          f"{force.size}")
     tail = max(2, int(0.3 * s.step_hold_s * cfg.rates.control_hz))
     lv, fm, fs_ = [0.0], [float(np.mean(force[: int(0.08 * rate)]))], []
@@ -181,7 +182,7 @@ def analyse(cfg: RigConfig, demand: np.ndarray, segs: list[dict[str, Any]], forc
     order = np.argsort(levels)
     levels, settled = levels[order], settled[order]
     if np.any(np.diff(settled) <= 0):
-        raise ValueError("force: the settled force does not rise with the demand "
+        raise InputError("force: the settled force does not rise with the demand "
                          f"({np.round(settled, 2).tolist()} N at {levels.tolist()} N): is the "
                          f"drive enabled and the arm on the surface?")
     slope, intercept = np.polyfit(levels, settled, 1)
@@ -189,7 +190,7 @@ def analyse(cfg: RigConfig, demand: np.ndarray, segs: list[dict[str, Any]], forc
     m_force = settled - settled[0]
     m_force[0] = 0.0
     if np.any(np.diff(m_force) <= 0):
-        raise ValueError("force: the static map is not monotonic")
+        raise InputError("force: the static map is not monotonic")
 
     comp0 = MotorCompensation(0.0, tuple(levels.tolist()), tuple(m_force.tolist()), "fit")
     pred = _hold(comp0.forward(demand), spc)

@@ -28,6 +28,7 @@ from rig import __version__
 from rig.calibration.settings import records_folder, settings_for
 from rig.calrecords import CalRecord, nominal
 from rig.config import RigConfig
+from rig.errors import InputError
 
 FORMAT = "rig-calibration"
 FORMAT_VERSION = 1
@@ -80,7 +81,7 @@ def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: 
     from rig.runfile import git_commit
 
     if sensor not in SENSORS:
-        raise ValueError(f"sensor: expected one of {SENSORS}, got {sensor!r}")
+        raise InputError(f"sensor: expected one of {SENSORS}, got {sensor!r}")
     when = created or _dt.datetime.now(_dt.UTC)
     rec: dict[str, Any] = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "sensor": sensor, "kind": kind,
@@ -96,13 +97,13 @@ def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: 
 def write(folder: Path, record: dict[str, Any]) -> Path:
     """Write a new record file (never overwrites); returns its path."""
     if record.get("content_hash") != content_hash(record):
-        raise ValueError("record: content_hash does not match its content (build() it)")
+        raise InputError("record: content_hash does not match its content (build() it)")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     stamp = _dt.datetime.fromisoformat(record["created"]).strftime("%Y%m%dT%H%M%S%fZ")
     path = folder / f"{record['sensor']}-{stamp}-{record['content_hash'][7:15]}.json"
     if path.exists():
-        raise RuntimeError(f"{path}: a calibration record with this name already exists")
+        raise InputError(f"{path}: a calibration record with this name already exists")
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
     os.replace(tmp, path)
@@ -114,14 +115,14 @@ def read(path: Path) -> dict[str, Any]:
     try:
         rec = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: not a readable calibration record ({exc})") from None
+        raise InputError(f"{path}: not a readable calibration record ({exc})") from None
     if not isinstance(rec, dict) or rec.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a calibration record (format is not {FORMAT!r})")
+        raise InputError(f"{path}: not a calibration record (format is not {FORMAT!r})")
     if rec.get("content_hash") != content_hash(rec):
-        raise ValueError(f"{path}: content_hash does not match: the file was altered")
+        raise InputError(f"{path}: content_hash does not match: the file was altered")
     for key in ("sensor", "created", "fit", "uncertainty", "rig"):
         if key not in rec:
-            raise ValueError(f"{path}: {key}: missing")
+            raise InputError(f"{path}: {key}: missing")
     return rec
 
 

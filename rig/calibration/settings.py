@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from rig.errors import InputError
+
 if TYPE_CHECKING:  # rig.config imports this module for RigConfig.calibration
     from rig.config import RigConfig
 
@@ -74,7 +76,7 @@ class MotorCal(_Strict):
     @classmethod
     def _levels(cls, v: list[float]) -> list[float]:
         if len(v) > 100 or any(not 0 < x <= 120 for x in v):
-            raise ValueError("expected at most 100 forces in (0, 120] N")
+            raise InputError("expected at most 100 forces in (0, 120] N")
         return v
 
 
@@ -99,7 +101,7 @@ class CalibrationSettings(_Strict):
     def _known(cls, v: list[str]) -> list[str]:
         unknown = [s for s in v if s not in SENSORS]
         if unknown:
-            raise ValueError(f"unknown sensor {unknown[0]!r} (expected some of "
+            raise InputError(f"unknown sensor {unknown[0]!r} (expected some of "
                              f"{', '.join(SENSORS)})")
         return v
 
@@ -117,7 +119,7 @@ def settings_for(cfg: RigConfig) -> CalibrationSettings:
     except ValidationError as exc:
         e = exc.errors()[0]
         where = ".".join(str(p) for p in e["loc"])
-        raise ValueError(f"calibration.{where}: {e['msg']}") from None
+        raise InputError(f"calibration.{where}: {e['msg']}") from None
 
 
 def records_folder(cfg: RigConfig, override: Path | None = None) -> Path:

@@ -29,6 +29,7 @@ from rig import strain as strain_mod
 from rig.calibration.bench import Bench, bridge_range, shunt_equivalent_strain
 from rig.calibration.settings import StrainCal
 from rig.config import RigConfig
+from rig.errors import InputError
 
 UNITS = {"raw": "V/V", "calibrated": "m/m", "sensitivity": "gauge factor (1)",
          "offset": "V/V", "strain": "m/m", "resistance": "ohm"}
@@ -51,7 +52,7 @@ def calibrate(cfg: RigConfig, bench: Bench, s: StrainCal) -> StrainResult:
     """Run nulling and the shunt step on ``bench``; ValueError (one line) if refused."""
     g = cfg.channels.strain_gauge
     if not g.enabled:
-        raise ValueError("channels.strain_gauge.enabled: the rig has no strain gauge")
+        raise InputError("channels.strain_gauge.enabled: the rig has no strain gauge")
     rng = bridge_range(cfg, "strain_gauge")
     n_settle = int(round(s.settle_s * bench.rate_hz))
     nulling = bench.null_offset("strain_gauge")
@@ -64,7 +65,7 @@ def calibrate(cfg: RigConfig, bench: Bench, s: StrainCal) -> StrainResult:
         bench.shunt("strain_gauge", False, s.shunt_resistor_ohm)
     for name, st in (("at rest", rest), ("with the shunt", shunted)):
         if st[3] >= 0.98 * rng:
-            raise ValueError(f"strain gauge {name}: the bridge is saturated ({st[3] * 1e3:.3f} "
+            raise InputError(f"strain gauge {name}: the bridge is saturated ({st[3] * 1e3:.3f} "
                              f"mV/V against +-{rng * 1e3:g} mV/V): null the bridge, check the "
                              f"gauge and its wiring")
     rg, gf, rl, rs = (g.nominal_resistance_ohm, g.gage_factor, g.lead_wire_resistance_ohm,
@@ -72,12 +73,12 @@ def calibrate(cfg: RigConfig, bench: Bench, s: StrainCal) -> StrainResult:
     e_eq = shunt_equivalent_strain(rg, gf, rs)
     e_meas = float(strain_mod.to_strain(shunted[0], gf, rest[0], rl, rg))
     if e_meas == 0 or math.copysign(1, e_meas) != math.copysign(1, e_eq):
-        raise ValueError(f"shunt step: out of tolerance: it reads {e_meas * 1e6:.1f} "
+        raise InputError(f"shunt step: out of tolerance: it reads {e_meas * 1e6:.1f} "
                          f"microstrain, expected about {e_eq * 1e6:.1f} (no step, or the "
                          f"wrong sign: check the shunt circuit and the bridge wiring)")
     gain = e_eq / e_meas
     if abs(gain - 1) > s.tolerance:
-        raise ValueError(f"shunt step: out of tolerance: it reads {e_meas * 1e6:.1f} "
+        raise InputError(f"shunt step: out of tolerance: it reads {e_meas * 1e6:.1f} "
                          f"microstrain for {e_eq * 1e6:.1f} expected (gain adjustment "
                          f"{gain:.4f}, allowed 1 +- {s.tolerance:g}): check the shunt resistor, "
                          f"the gauge factor and the lead resistance in the config")

@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections import deque
 
 from rig.control.ilc import DEFAULT_GAIN_K
+from rig.errors import InputError
 
 
 class LoadCellPI:
@@ -35,7 +36,7 @@ class LoadCellPI:
                  control_hz: float = 500.0, lead: int = 4, max_force_n: float = 60.0,
                  integral_limit_n: float = 5.0) -> None:
         if not gain_k > 0 or not dead_time_s > 0:
-            raise ValueError(f"LoadCellPI: expected K > 0 and dead time > 0, got {gain_k}, "
+            raise InputError(f"LoadCellPI: expected K > 0 and dead time > 0, got {gain_k}, "
                              f"{dead_time_s}")
         wc = 1.0 / (4.0 * dead_time_s)
         self.ki = wc / gain_k

@@ -43,6 +43,7 @@ import numpy as np
 from scipy.signal import butter, filtfilt
 
 from rig.config import Limits
+from rig.errors import InputError
 
 DEFAULT_GAIN_K = 0.9322        # N/N, actuator.process_model_all K of the thesis (Eq. D.1)
 DEFAULT_LEARNING_FACTOR = 1.0  # fraction of the error (divided by K) learned per trial
@@ -60,11 +61,11 @@ class LearningFilter:
 
     def __post_init__(self) -> None:
         if not 0 < self.gain < 10:
-            raise ValueError(f"learning gain: expected 0 to 10 N/N, got {self.gain}")
+            raise InputError(f"learning gain: expected 0 to 10 N/N, got {self.gain}")
         if not 0 <= self.lead <= 100:
-            raise ValueError(f"learning lead: expected 0 to 100 cycles, got {self.lead}")
+            raise InputError(f"learning lead: expected 0 to 100 cycles, got {self.lead}")
         if not self.q_cutoff_hz > 0:
-            raise ValueError(f"q_cutoff_hz: expected > 0 Hz, got {self.q_cutoff_hz}")
+            raise InputError(f"q_cutoff_hz: expected > 0 Hz, got {self.q_cutoff_hz}")
 
     @classmethod
     def default(cls, control_hz: float, advance_s: float,
@@ -142,7 +143,7 @@ class Learner:
         r = np.asarray(reference, float)
         u0 = limit_table(np.asarray(initial, float), limits, 1.0 / control_hz)
         if u0.shape != r.shape:
-            raise ValueError(f"initial feedforward: expected {r.shape[0]} points, got "
+            raise InputError(f"initial feedforward: expected {r.shape[0]} points, got "
                              f"{u0.shape[0]}")
         return cls(r, u0, filt, limits, control_hz, **kw)
 
@@ -154,7 +155,7 @@ class Learner:
         """Learn from the trial just played with ``self.u``; its errors (with ``trial``)."""
         y = np.asarray(measured, float)
         if y.shape != self.reference.shape:
-            raise ValueError(f"measured force: expected {self.reference.shape[0]} points, got "
+            raise InputError(f"measured force: expected {self.reference.shape[0]} points, got "
                              f"{y.shape[0]}")
         err = errors(self.reference, y, self.peak)
         err["trial"] = float(len(self.history) + 1)
@@ -190,5 +191,5 @@ class Learner:
     def result(self) -> tuple[np.ndarray, dict[str, float]]:
         """The best table played and its errors."""
         if self.best_u is None or self.best is None:
-            raise ValueError("no trial learned from yet")
+            raise InputError("no trial learned from yet")
         return self.best_u.copy(), dict(self.best)

@@ -30,6 +30,7 @@ import numpy as np
 from rig import profiles
 from rig.calibration.records import _clean, content_hash, rig_identity
 from rig.config import RigConfig
+from rig.errors import InputError
 
 FORMAT = "rig-learned-feedforward"
 FORMAT_VERSION = 1
@@ -82,7 +83,7 @@ def write(cfg: RigConfig, record: dict[str, Any]) -> Path:
     stamp = _dt.datetime.fromisoformat(record["created"]).strftime("%Y%m%dT%H%M%S%fZ")
     path = d / f"{record['profile']['name']}-{stamp}-{record['content_hash'][7:15]}.json"
     if path.exists():
-        raise RuntimeError(f"{path}: a learned-feedforward record with this name already exists")
+        raise InputError(f"{path}: a learned-feedforward record with this name already exists")
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
     os.replace(tmp, path)
@@ -94,11 +95,11 @@ def read(path: Path) -> dict[str, Any]:
     try:
         rec = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: not a readable learned-feedforward record ({exc})") from None
+        raise InputError(f"{path}: not a readable learned-feedforward record ({exc})") from None
     if not isinstance(rec, dict) or rec.get("format") != FORMAT:
-        raise ValueError(f"{path}: format: not a learned-feedforward record")
+        raise InputError(f"{path}: format: not a learned-feedforward record")
     if rec.get("content_hash") != content_hash(rec):
-        raise ValueError(f"{path}: content_hash does not match: the file was altered")
+        raise InputError(f"{path}: content_hash does not match: the file was altered")
     return rec
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from rig import profiles as _profiles
+from rig.errors import InputError
 from rig.model import assembly, restcache
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
@@ -252,7 +253,7 @@ class ActionModel:
         self.effects: list[Effect] = [make(e, base_dir) for e in effects]
         names = [e.name for e in self.effects]
         if len(set(names)) != len(names):
-            raise ValueError(f"effects: each effect may appear once, got {names}")
+            raise InputError(f"effects: each effect may appear once, got {names}")
         build = Build(self.params.copy())
         for effect in self.effects:
             effect.apply(build)
@@ -274,7 +275,7 @@ class ActionModel:
         self.integrator = integrator
         self.output_rate = float(output_rate or num["output_rate_hz"])
         if not self.output_rate > 0:
-            raise ValueError(f"output_rate: expected a positive rate in Hz, got {output_rate}")
+            raise InputError(f"output_rate: expected a positive rate in Hz, got {output_rate}")
         self.atol = np.r_[np.full(k.NQ, num["atol_angle"]), np.full(k.NQ, num["atol_rate"])]
         length = build.params.tree["hammer_shank_beam"]["length"]
         for q, tol in ((k.QU1, num["atol_shank_axial"]),
@@ -322,13 +323,13 @@ class ActionModel:
             p = Path(path)
             loaded = load_yaml_file(p)
             if loaded is not None and not isinstance(loaded, Mapping):
-                raise ValueError(f"{p}: expected a mapping with parameters, effects, integrator")
+                raise InputError(f"{p}: expected a mapping with parameters, effects, integrator")
             data = loaded or {}
             base = p.parent
             unknown = sorted(set(map(str, data)) - {"parameters", "effects", "integrator",
                                                     "description"})
             if unknown:
-                raise ValueError(f"{p}: {unknown[0]}: unknown key (expected parameters, "
+                raise InputError(f"{p}: {unknown[0]}: unknown key (expected parameters, "
                                  f"effects, integrator, description)")
         params = Parameters.default()
         pspec = data.get("parameters")
@@ -337,10 +338,10 @@ class ActionModel:
         elif isinstance(pspec, Mapping):
             params.update(pspec, source=f"{path}: parameters")
         elif pspec is not None:
-            raise ValueError(f"{path}: parameters: expected a file name or a mapping")
+            raise InputError(f"{path}: parameters: expected a file name or a mapping")
         eff = list(data.get("effects") or [])
         if not isinstance(data.get("effects") or [], list):
-            raise ValueError(f"{path}: effects: expected a list")
+            raise InputError(f"{path}: effects: expected a list")
         eff.extend(e for e in effects if e not in eff)
         integ = None
         ispec = data.get("integrator")
@@ -552,7 +553,7 @@ class ActionModel:
         # the rail pushes harder the higher it sits: 10 mm down the key hangs in the air
         lo, hi = -0.01, 0.01
         if not lift_acceleration(lo) < 0 < lift_acceleration(hi):
-            raise ValueError("contacts.14: the balance rail cannot hold the key at rest "
+            raise InputError("contacts.14: the balance rail cannot hold the key at rest "
                              "within 10 mm of its given height")
         from scipy.optimize import brentq
 
@@ -575,7 +576,7 @@ class ActionModel:
         """Simulate a blow under the profile's key force, from rest unless y0 is given."""
         duration = profile.duration if duration is None else float(duration)
         if not duration > 0:
-            raise ValueError(f"duration: expected a positive time in s, got {duration}")
+            raise InputError(f"duration: expected a positive time in s, got {duration}")
         profile = self._input_profile(profile)
         ft, ff = self.input_force(profile)
         step = self.stepper(y0)
@@ -604,7 +605,7 @@ class ActionModel:
                 e.drive_by_motion(self, None)
             return profile
         if not movers:
-            raise ValueError(f"{profile.source}: kind: motion needs the fingertip effect "
+            raise InputError(f"{profile.source}: kind: motion needs the fingertip effect "
                              f"(-e fingertip)")
         movers[0].drive_by_motion(self, profile)
         return _profiles.Profile(profile.time, np.zeros_like(profile.force), profile.name,
@@ -742,7 +743,7 @@ class Stepper:
             f_end = f_start
         for name, v in (("f_start", f_start), ("f_end", f_end), ("t_end", t_end)):
             if not math.isfinite(v):
-                raise ValueError(f"{name}: expected a finite number, got {v}")
+                raise InputError(f"{name}: expected a finite number, got {v}")
         return self.advance_table(t_end, np.array([self.t, t_end]), np.array([f_start, f_end]))
 
     def advance_table(self, t_end: float, force_t: np.ndarray, force_f: np.ndarray) -> Chunk:
@@ -750,7 +751,7 @@ class Stepper:
         if self.status != 0:
             raise RuntimeError(f"the simulation has failed ({self.message}); it cannot advance")
         if t_end <= self.t:
-            raise ValueError(f"t_end: expected a time after {self.t} s, got {t_end}")
+            raise InputError(f"t_end: expected a time after {self.t} s, got {t_end}")
         last = int(math.floor(t_end / self._dt + 1e-9))
         out_t = np.arange(self._next, last + 1) * self._dt
         adv: Advance = self.model.integrator.advance(

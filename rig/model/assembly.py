@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rig.errors import InputError
 from rig.model import kernel as k
 from rig.params import Parameters
 
@@ -48,7 +49,7 @@ def _kind(kind: str) -> int:
         return k.K_CIRCLE
     if "line" in kind:
         return k.K_LINE
-    raise ValueError(f"contact feature kind {kind!r} is not line, circle or hybrid")
+    raise InputError(f"contact feature kind {kind!r} is not line, circle or hybrid")
 
 
 def _feature(params: Parameters, ref: str, sections: list[float], shank_len: float) -> np.ndarray:

@@ -109,7 +109,7 @@ class Effect:
         self.explicit: set[str] = set()  # set by the user; others follow the model's parameters
         for key, value in values.items():
             if key not in known:
-                raise ValueError(f"effect {self.name}: unknown parameter {key!r} "
+                raise InputError(f"effect {self.name}: unknown parameter {key!r} "
                                  f"(expected one of {sorted(known)})")
             self.set(key, value)
 
@@ -118,16 +118,16 @@ class Effect:
         (``"default"`` sets the library's default)."""
         spec = {p.name: p for p in self.parameters}.get(key)
         if spec is None:
-            raise ValueError(f"effect {self.name}: unknown parameter {key!r}")
+            raise InputError(f"effect {self.name}: unknown parameter {key!r}")
         if isinstance(value, str) and value.strip().lower() == "default":
             value = spec.default  # the library's default back, explicitly
         if isinstance(value, bool) or not isinstance(value, int | float) \
                 or not math.isfinite(float(value)):
-            raise ValueError(f"effect {self.name}: parameter {key!r}: expected a finite number "
+            raise InputError(f"effect {self.name}: parameter {key!r}: expected a finite number "
                              f"in {spec.units}, got {value!r}")
         lo, hi = spec.bounds
         if not lo <= float(value) <= hi:
-            raise ValueError(f"effect {self.name}: parameter {key!r} = {value} is outside its "
+            raise InputError(f"effect {self.name}: parameter {key!r} = {value} is outside its "
                              f"physical bounds [{lo}, {hi}] {spec.units}")
         self.values[key] = float(value)
         self.explicit.add(key)
@@ -250,11 +250,11 @@ def rail_lift(result: SimResult, start: float = -math.inf, end: float = math.inf
     never pulls), so ``airborne`` can exceed zero while ``clearance`` is still negative."""
     lift = result.channels.get("key_lift")
     if lift is None:
-        raise ValueError("result: key_lift: the blow was simulated without key_liftoff")
+        raise InputError("result: key_lift: the blow was simulated without key_liftoff")
     t = result.time
     w = (t >= start) & (t < end)
     if not w.any():
-        raise ValueError(f"start, end: no samples between {start} and {end} s")
+        raise InputError(f"start, end: no samples between {start} and {end} s")
     height = float(lift[w].max())
     felt = float(result.contact("contact_penetration", 14)[0])
     free = w & (result.contact("contact_force", 14) <= 0.0)
@@ -265,7 +265,7 @@ def rail_lift(result: SimResult, start: float = -math.inf, end: float = math.inf
 def _uniform(time: np.ndarray, force: np.ndarray) -> float:
     dt = np.diff(time)
     if dt.size == 0 or np.ptp(dt) > 1e-9 * max(1.0, float(dt.mean())):
-        raise ValueError("transform_input: expected force on a uniform time grid")
+        raise InputError("transform_input: expected force on a uniform time grid")
     return float(dt.mean())
 
 
@@ -454,7 +454,7 @@ import rig.model.fingertip  # noqa: E402,F401  (registers the fingertip effect i
 def register(cls: type[Effect]) -> type[Effect]:
     """Add an effect class to the library (usable by name in model YAML)."""
     if not cls.name:
-        raise ValueError(f"{cls.__qualname__}: an effect needs a non-empty name")
+        raise InputError(f"{cls.__qualname__}: an effect needs a non-empty name")
     BUILTIN[cls.name] = cls
     return cls
 
@@ -479,16 +479,16 @@ def _where(exc: BaseException, path: Path) -> str:
 def _load_class(ref: str) -> type[Effect]:
     target, _, cls_name = ref.rpartition(":")
     if not target or not cls_name:
-        raise ValueError(f"effect {ref!r}: expected a library name, 'module:Class' or "
+        raise InputError(f"effect {ref!r}: expected a library name, 'module:Class' or "
                          f"'path.py:Class'")
     if target.endswith(".py"):
         path = Path(target)
         if not path.is_file():
-            raise ValueError(f"effect {ref!r}: file {path} not found")
+            raise InputError(f"effect {ref!r}: file {path} not found")
         mod_name = f"rig_user_effect_{abs(hash(str(path.resolve())))}"
         spec = importlib.util.spec_from_file_location(mod_name, path)
         if spec is None or spec.loader is None:
-            raise ValueError(f"effect {ref!r}: cannot import {path}")
+            raise InputError(f"effect {ref!r}: cannot import {path}")
         module = importlib.util.module_from_spec(spec)
         sys.modules[mod_name] = module
         try:
@@ -506,7 +506,7 @@ def _load_class(ref: str) -> type[Effect]:
                                        f"({type(exc).__name__}: {exc})")) from None
     cls = getattr(module, cls_name, None)
     if not (isinstance(cls, type) and issubclass(cls, Effect)):
-        raise ValueError(f"effect {ref!r}: {cls_name} is not a subclass of rig Effect")
+        raise InputError(f"effect {ref!r}: {cls_name} is not a subclass of rig Effect")
     return cls
 
 
@@ -517,15 +517,15 @@ def make(spec: str | Mapping[str, Any] | Effect, base_dir: Path | None = None) -
     values: Mapping[str, Any] = {}
     if isinstance(spec, Mapping):
         if len(spec) != 1:
-            raise ValueError(f"effect {dict(spec)!r}: expected one name with its parameters")
+            raise InputError(f"effect {dict(spec)!r}: expected one name with its parameters")
         ((name, vals),) = spec.items()
         values = vals or {}
         if not isinstance(values, Mapping):
-            raise ValueError(f"effect {name}: expected a mapping of parameter values")
+            raise InputError(f"effect {name}: expected a mapping of parameter values")
     elif isinstance(spec, str):
         name = spec
     else:
-        raise ValueError(f"effect {spec!r}: expected a name or a mapping")
+        raise InputError(f"effect {spec!r}: expected a name or a mapping")
     if name in BUILTIN:
         cls = BUILTIN[name]
     elif ":" in name:
@@ -535,6 +535,6 @@ def make(spec: str | Mapping[str, Any] | Effect, base_dir: Path | None = None) -
             ref = f"{base_dir / target}:{name.rpartition(':')[2]}"
         cls = _load_class(ref)
     else:
-        raise ValueError(f"effect {name!r}: not in the library (known: {sorted(BUILTIN)}); "
+        raise InputError(f"effect {name!r}: not in the library (known: {sorted(BUILTIN)}); "
                          f"name a user effect as 'module:Class' or 'file.py:Class'")
     return cls(**dict(values))

@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rig.errors import InputError
 from rig.model.effects import BUILTIN, Effect, EffectParameter, EffectState, Signature
 
 if TYPE_CHECKING:
@@ -66,7 +67,7 @@ def constant_speed_force(speed_mm_s: float, depth_mm: float, values: dict[str, f
     """The pulp's force (N) after indenting at constant speed from rest to ``depth_mm``:
     Eq. 3.12 integrated (LSODA, tight tolerances) and Eq. 3.13 at the end (Fig. 4.15)."""
     if not speed_mm_s > 0 or not depth_mm > 0:
-        raise ValueError("speed_mm_s, depth_mm: expected positive numbers")
+        raise InputError("speed_mm_s, depth_mm: expected positive numbers")
     v = values
     from scipy.integrate import solve_ivp  # (lazy: rig simulate does not need scipy's ODEs)
 

@@ -23,6 +23,7 @@ from typing import Protocol
 import numpy as np
 from numba import njit
 
+from rig.errors import InputError
 from rig.model import kernel as k
 
 STATUS_OK = 0
@@ -301,9 +302,9 @@ class DormandPrince:
 
     def __post_init__(self) -> None:
         if not (0 < self.rtol < 1):
-            raise ValueError(f"rtol: expected a number in (0, 1), got {self.rtol}")
+            raise InputError(f"rtol: expected a number in (0, 1), got {self.rtol}")
         if not self.max_step > 0:
-            raise ValueError(f"max_step: expected a positive time in s, got {self.max_step}")
+            raise InputError(f"max_step: expected a positive time in s, got {self.max_step}")
 
     def advance(self, model, ws, y0, t0, t1, step, force_t, force_f, out_t, atol,
                 extra_force=None):
@@ -324,7 +325,7 @@ class RungeKutta4:
 
     def __post_init__(self) -> None:
         if not self.step > 0:
-            raise ValueError(f"step: expected a positive time in s, got {self.step}")
+            raise InputError(f"step: expected a positive time in s, got {self.step}")
 
     def advance(self, model, ws, y0, t0, t1, step, force_t, force_f, out_t, atol,
                 extra_force=None):
@@ -385,5 +386,5 @@ def by_name(name: str, rtol: float = 1e-6, max_step: float = 2e-4) -> Integrator
         return Rosenbrock(rtol=rtol, max_step=max_step)
     if name.startswith("scipy-"):
         return ScipyIntegrator(method=name.split("-", 1)[1], rtol=rtol, max_step=max_step)
-    raise ValueError(f"integrator: expected rosenbrock, dopri54, rk4 or scipy-<method>, got "
+    raise InputError(f"integrator: expected rosenbrock, dopri54, rk4 or scipy-<method>, got "
                      f"{name!r}")

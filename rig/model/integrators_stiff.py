@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from rig.errors import InputError
 from rig.model import kernel as k
 from rig.model.integrators import Advance, _compiled_only, _hermite, force_at
 
@@ -502,14 +503,14 @@ class Rosenbrock:
 
     def __post_init__(self) -> None:
         if not (0 < self.rtol < 1):
-            raise ValueError(f"rtol: expected a number in (0, 1), got {self.rtol}")
+            raise InputError(f"rtol: expected a number in (0, 1), got {self.rtol}")
         if not self.max_step > 0:
-            raise ValueError(f"max_step: expected a positive time in s, got {self.max_step}")
+            raise InputError(f"max_step: expected a positive time in s, got {self.max_step}")
         for name in ("max_steps", "jac_reuse", "refresh_age", "to_implicit"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name}: expected a positive count, got {getattr(self, name)}")
+                raise InputError(f"{name}: expected a positive count, got {getattr(self, name)}")
         if not self.to_explicit > 0:
-            raise ValueError(f"to_explicit: expected a positive ratio, got {self.to_explicit}")
+            raise InputError(f"to_explicit: expected a positive ratio, got {self.to_explicit}")
 
     def advance(self, model, ws, y0, t0, t1, step, force_t, force_f, out_t, atol,
                 extra_force=None):
@@ -541,7 +542,7 @@ class Rosenbrock:
 def _active(model: tuple[np.ndarray, ...], n_state: int) -> np.ndarray:
     """Indices of the coordinates that move (the others are frozen by the model's flags)."""
     if n_state != k.NY:
-        raise ValueError(f"y0: expected {k.NY} states, got {n_state}")
+        raise InputError(f"y0: expected {k.NY} states, got {n_state}")
     sp = model[0]
     active = np.ones(k.NQ, dtype=bool)
     active[k.QYK] = sp[k.S_LIFTOFF] > 0.5

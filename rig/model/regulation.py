@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rig import profiles
+from rig.errors import InputError
 from rig.params import Parameters, load_yaml_file
 
 if TYPE_CHECKING:
@@ -102,14 +103,14 @@ def load_targets(path: str | Path) -> dict[str, float]:
     p = Path(path)
     data = load_yaml_file(p)
     if not isinstance(data, Mapping) or not data:
-        raise ValueError(f"{p}: expected a mapping of {', '.join(ADJUSTMENTS)} to metres")
+        raise InputError(f"{p}: expected a mapping of {', '.join(ADJUSTMENTS)} to metres")
     out = {}
     for name, value in data.items():
         if name not in ADJUSTMENTS:
-            raise ValueError(f"{p}: {name}: unknown target (expected {', '.join(ADJUSTMENTS)})")
+            raise InputError(f"{p}: {name}: unknown target (expected {', '.join(ADJUSTMENTS)})")
         if isinstance(value, bool) or not isinstance(value, int | float) \
                 or not math.isfinite(value) or not 0 < value < 0.1:
-            raise ValueError(f"{p}: {name}: expected a distance in metres (0 < x < 0.1), "
+            raise InputError(f"{p}: {name}: expected a distance in metres (0 < x < 0.1), "
                              f"got {value!r}")
         out[str(name)] = float(value)
     return out
@@ -162,7 +163,7 @@ def solve(params: Parameters, targets: Mapping[str, float], effects: list[str] |
         x, r, fig = x + step, r_new, fig_new
     if not np.all(np.isfinite(r)) or np.any(np.abs(r) >= TOLERANCE_M):
         worst = names[int(np.nanargmax(np.abs(r)))]
-        raise ValueError(f"targets: {worst}: not met within {TOLERANCE_M * 1e3:.1f} mm "
+        raise InputError(f"targets: {worst}: not met within {TOLERANCE_M * 1e3:.1f} mm "
                          f"(reached {fig[worst] * 1e3:.2f} mm)")
     points = {}
     for (path, i), v in zip(paths, x, strict=True):
@@ -178,7 +179,7 @@ def regulated_model_yaml(base: Mapping[str, Any] | None, points: Mapping[str, li
     data: dict[str, Any] = dict(base or {})
     pspec = data.get("parameters")
     if pspec is not None and not isinstance(pspec, Mapping):
-        raise ValueError("model: parameters: --to needs parameters as a mapping of overrides "
+        raise InputError("model: parameters: --to needs parameters as a mapping of overrides "
                          "(not a file name)")
     params: dict[str, Any] = _deep_copy(pspec or {})
     for path, value in points.items():

@@ -10,6 +10,7 @@ import yaml
 
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
+from rig.errors import InputError
 from rig.model.action import ActionModel
 from rig.model.effects import make
 
@@ -25,7 +26,7 @@ def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
     from rig.executor import executor_for
 
     if not runs:
-        raise ValueError("runs: expected at least one run file")
+        raise InputError("runs: expected at least one run file")
     model = ActionModel.from_yaml(model_file)
     meas = [m for r in runs for m in ms.load(r)]
     data = ft.Data.build(meas, input, duration, channels)
@@ -59,7 +60,7 @@ def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
         if t.effect is None:
             params = data.get("parameters")
             if isinstance(params, str):
-                raise ValueError(f"write: {model_file} names a parameter file; add {t.label} "
+                raise InputError(f"write: {model_file} names a parameter file; add {t.label} "
                                  f"= {v:.6g} to it by hand")
             tree = data.setdefault("parameters", {})
             node = tree

@@ -31,6 +31,7 @@ from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.control import ilc
 from rig.control import records as learned_records
+from rig.errors import InputError
 from rig.services import run as run_svc
 
 
@@ -55,7 +56,7 @@ def measured_force(path: Path, n: int) -> np.ndarray:
     t = tr.commands["time"]
     y = tr.commands["measured_force"][t >= -1e-9]
     if y.size < n:
-        raise RuntimeError(f"{path}: commands/measured_force: {y.size} cycles, expected {n}")
+        raise InputError(f"{path}: commands/measured_force: {y.size} cycles, expected {n}")
     return np.asarray(y[:n], float)
 
 
@@ -69,7 +70,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
           use_learned: bool = True) -> LearnReport:
     say = on_line or (lambda s: None)
     if n < 1:
-        raise ValueError(f"--learn: expected at least 1 trial, got {n}")
+        raise InputError(f"--learn: expected at least 1 trial, got {n}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     hz = cfg.rates.control_hz
     full_records = cal_records.embedded(calrecords.lookup(cfg), cfg)

@@ -73,7 +73,7 @@ def load_controller(spec: str) -> Controller:
         return OpenLoop()
     mod, _, cls = spec.partition(":")
     if not mod or not cls:
-        raise ValueError(f"loop.controller: expected 'open_loop' or 'module:Class', got {spec!r}")
+        raise InputError(f"loop.controller: expected 'open_loop' or 'module:Class', got {spec!r}")
     try:
         obj: Controller = getattr(importlib.import_module(mod), cls)()
     except Exception as exc:  # the user's module: any error in importing or making it, one line
@@ -230,7 +230,7 @@ def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
         probe = probe.parent
     free = shutil.disk_usage(probe).free
     if free < need:
-        raise ValueError(f"data_folder: {folder} has {free / 1e6:.1f} MB free; this run "
+        raise InputError(f"data_folder: {folder} has {free / 1e6:.1f} MB free; this run "
                          f"({trials} x {profile.name}, {seconds:.1f} s) needs about "
                          f"{need / 1e6:.1f} MB")
     return need
@@ -262,10 +262,10 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
     if out is not None:
         path = Path(out)
         if len(path.name) > MAX_NAME:
-            raise ValueError(f"--out: file name of {len(path.name)} characters is too long "
+            raise InputError(f"--out: file name of {len(path.name)} characters is too long "
                              f"(at most {MAX_NAME})")
         if path.exists() and not force:
-            raise ValueError(f"--out: {path} exists; use --force to overwrite it")
+            raise InputError(f"--out: {path} exists; use --force to overwrite it")
         path.parent.mkdir(parents=True, exist_ok=True)
         if not force:
             _create_exclusive(path)
@@ -281,7 +281,7 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
         except FileExistsError:
             continue
         return path
-    raise ValueError(f"data_folder: no free run-file name for {base} in {folder}")
+    raise InputError(f"data_folder: no free run-file name for {base} in {folder}")
 
 
 def _create_exclusive(path: Path) -> None:
@@ -303,12 +303,12 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     feedforward instead of the advance or the motor compensation (issue 18)."""
     say = on_line or (lambda s: None)
     if trials < 1:
-        raise ValueError(f"trials: expected at least 1, got {trials}")
+        raise InputError(f"trials: expected at least 1, got {trials}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
                             max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
     if cfg.backend == "ni" and cfg.drive.port == "sim":
-        raise ValueError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+        raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
     ctl = controller or load_controller(cfg.loop.controller)
     cals = calrecords.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
@@ -567,7 +567,7 @@ def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
             "unpinned")
         return None
     if cpu not in cpus:
-        raise ValueError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
+        raise InputError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
                          f"CPUs {pacing.cpu_list(cpus)})")
     return cpu
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from rig import profiles
 from rig.analysis import sweep as sw
+from rig.errors import InputError
 from rig.executor import executor_for
 from rig.model.action import ActionModel
 
@@ -22,12 +23,12 @@ def sweep(model_file: Path | None, profile_file: Path, params: Sequence[str], ou
     """Run (or finish) the sweep into ``out``; Sobol indices for a sobol design."""
     axes = [sw.Axis.parse(p) for p in params]
     if len({a.name for a in axes}) != len(axes):
-        raise ValueError("param: each parameter may appear once")
+        raise InputError("param: each parameter may appear once")
     sw.make_design(design, axes, samples, seed)  # bad design input fails before any work
     if report is not None and Path(report).exists() and not force:
-        raise ValueError(f"report: {report} exists; use --force to replace it")
+        raise InputError(f"report: {report} exists; use --force to replace it")
     if report is not None and design != "sobol":
-        raise ValueError("report: Sobol indices need --design sobol")
+        raise InputError("report: Sobol indices need --design sobol")
     model = ActionModel.from_yaml(model_file)
     profile = profiles.load(profile_file)
     ident = {"profile": hashlib.sha256(Path(profile_file).read_bytes()).hexdigest()}

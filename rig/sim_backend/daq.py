@@ -29,6 +29,7 @@ import numpy as np
 from rig import pacing
 from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
+from rig.errors import InputError
 from rig.model.action import ActionModel
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
 from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
@@ -69,7 +70,7 @@ class SimDaq(Daq):
             return
         if drive_state is not None or model is not None:
             self.fifo.close()
-            raise ValueError("drive_state, model: only for the lock-step simulated rig (in real "
+            raise InputError("drive_state, model: only for the lock-step simulated rig (in real "
                              "time the plant process builds its own)")
         try:
             self.link = PlantLink(max(4, cap // spc))

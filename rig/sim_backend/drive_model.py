@@ -59,6 +59,7 @@ from collections.abc import Mapping
 import numpy as np
 from scipy.linalg import expm
 
+from rig.errors import InputError
 from rig.params import Parameters
 
 VARIANTS = ("single", "asymmetric", "step_size")
@@ -101,11 +102,11 @@ class DriveModel:
     def __init__(self, dt: float, variant: str = "single", time_unit_s: float = 0.002,
                  params: Parameters | None = None) -> None:
         if variant not in VARIANTS:
-            raise ValueError(f"variant: expected one of {', '.join(VARIANTS)}, got {variant!r}")
+            raise InputError(f"variant: expected one of {', '.join(VARIANTS)}, got {variant!r}")
         if not dt > 0:
-            raise ValueError(f"dt: expected a positive step in s, got {dt}")
+            raise InputError(f"dt: expected a positive step in s, got {dt}")
         if not time_unit_s > 0:
-            raise ValueError(f"time_unit_s: expected a positive unit in s, got {time_unit_s}")
+            raise InputError(f"time_unit_s: expected a positive unit in s, got {time_unit_s}")
         p = params or Parameters.default()
 
         def coeffs(name: str) -> tuple[float, float, float, float]:

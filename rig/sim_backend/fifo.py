@@ -15,6 +15,8 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from rig.errors import InputError
+
 _HEADER = 4  # int64: written, read, closed, reserved
 
 
@@ -27,7 +29,7 @@ class SharedFifo:
 
     def __init__(self, capacity: int, width: int, name: str | None = None) -> None:
         if capacity < 1 or width < 1:
-            raise ValueError(f"capacity, width: expected positive sizes, got {capacity}, {width}")
+            raise InputError(f"capacity, width: expected positive sizes, got {capacity}, {width}")
         self.capacity, self.width = capacity, width
         size = 8 * (_HEADER + capacity * width)
         self.owner = name is None
@@ -62,7 +64,7 @@ class SharedFifo:
         """Append rows; with wait=True block until the reader made room."""
         n = rows.shape[0]
         if n > self.capacity:
-            raise ValueError(f"rows: {n} rows do not fit a buffer of {self.capacity}")
+            raise InputError(f"rows: {n} rows do not fit a buffer of {self.capacity}")
         if wait:
             end = time.monotonic() + timeout
             while self.free() < n:

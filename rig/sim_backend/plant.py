@@ -39,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from rig.errors import InputError
+
 _T_START, _STOP, _ERROR, _LAST_SAMPLE, _LAST_RATIO, _ENABLED, _FAULT, _DONE, _READY = range(9)
 _HEADER = 16
 _MSG_BYTES = 1024
@@ -50,7 +52,7 @@ class PlantLink:
 
     def __init__(self, slots: int, name: str | None = None) -> None:
         if slots < 2:
-            raise ValueError(f"slots: expected at least 2, got {slots}")
+            raise InputError(f"slots: expected at least 2, got {slots}")
         self.slots = slots
         self.owner = name is None
         size = 8 * (_HEADER + 2 * slots) + _MSG_BYTES

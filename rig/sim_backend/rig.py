@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from rig.config import RigConfig
+from rig.errors import InputError
 from rig.model.action import ANGLE_CHANNELS, ActionModel
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.plant import SharedDriveState
@@ -48,14 +49,14 @@ class SimRig:
         self.dt_sample = 1.0 / rate
         for name, enc in config.channels.encoders.items():
             if enc.kind == "linear" and enc.body != "key":
-                raise ValueError(f"channels.encoders.{name}: the simulated rig measures linear "
+                raise InputError(f"channels.encoders.{name}: the simulated rig measures linear "
                                  f"motion only on the key (key dip)")
         self.model = model or ActionModel(effects=config.sim.effects, output_rate=rate)
         if abs(self.model.output_rate - rate) > 1e-9:
-            raise ValueError(f"model: expected output_rate {rate} Hz, got {self.model.output_rate}")
+            raise InputError(f"model: expected output_rate {rate} Hz, got {self.model.output_rate}")
         self.strain_on = config.channels.strain_gauge.enabled
         if self.strain_on and "flexible_shank" not in self.model.effect_names:
-            raise ValueError("sim.effects: the strain gauge needs the flexible_shank effect "
+            raise InputError("sim.effects: the strain gauge needs the flexible_shank effect "
                              "(or set channels.strain_gauge.enabled: false)")
         self.drive_state: DriveState | SharedDriveState = drive_state or DriveState(enabled=True)
         self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
