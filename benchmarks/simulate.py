@@ -35,7 +35,7 @@ MODELS = {"rigid": [], "full": ["flexible_shank", "key_liftoff"]}
 def _model(effects: list[str], integrator: str | None) -> ActionModel:
     """The model with its default integrator, or the named one at the model's tolerances."""
     from rig.model.action import ActionModel
-    from rig.model.integrators import by_name
+    from rig.model.integration import by_name
 
     model = ActionModel(effects=effects)
     if integrator:
@@ -84,7 +84,7 @@ def breakdown(effects: list[str], repeats: int, integrator: str | None) -> dict[
     ft, ff = model.input_force(profile)
     model.simulate(profile)
     best = {"integrate_s": np.inf, "channels_s": np.inf, "result_s": np.inf, "rhs_s": np.inf}
-    ws, dy = model._workspace(), np.zeros(k.NY)
+    ws, dy = model.workspace(), np.zeros(k.NY)
     for i in range(repeats + 1):  # the first round compiles rhs_over
         st = model.stepper()
         t0 = time.perf_counter()
@@ -133,7 +133,7 @@ def main() -> None:
     ap.add_argument("--breakdown", action="store_true",
                     help="also time integration, channel output and one RHS separately")
     ap.add_argument("--integrator", default=None,
-                    help="integrator name (rig.model.integrators.by_name); default: the model's")
+                    help="integrator name (rig.model.integration.by_name); default: the model's")
     args = ap.parse_args()
     for name in args.models:
         effects = MODELS[name]

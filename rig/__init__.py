@@ -6,7 +6,9 @@ imported on first use so that ``import rig`` stays light.
 
 from typing import Any
 
-__version__ = "0.1.0"
+from rig.version import __version__
+
+__all__ = ["__version__", "diagnose", "load", "simulate"]
 
 _API = ("load", "simulate", "diagnose")
 

@@ -42,9 +42,10 @@ from typing import Any
 import numpy as np
 
 from rig import calrecords, runfile
+from rig.backends import open_reader
 from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 from rig.config import RigConfig, from_mapping
-from rig.daq import DaqFault, open_reader
+from rig.daq import DaqFault
 from rig.errors import InputError
 from rig.supervisor import ControllerWatch, make_safe
 
@@ -88,7 +89,7 @@ class Acquisition:
         self.stop: tuple[Any, ...] | None = None
 
     # -- messages --------------------------------------------------------------------
-    def _handle(self, msg: tuple[Any, ...]) -> None:
+    def handle(self, msg: tuple[Any, ...]) -> None:
         kind = msg[0]
         if kind == "trial":
             _, k, rec, prof = msg
@@ -113,7 +114,7 @@ class Acquisition:
                 msg = self.ctrl.get_nowait()
             except queue.Empty:
                 return
-            self._handle(msg)
+            self.handle(msg)
 
     # -- samples -----------------------------------------------------------------------
     def take(self, rows: np.ndarray) -> None:
@@ -237,7 +238,7 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                 continue
             if msg[0] == "go":
                 break
-            acq._handle(msg)
+            acq.handle(msg)
             if acq.stop is not None:  # the run ended before the clock started: close at once
                 _, _, final_status, meta, tattrs = acq.stop
                 acq.finish(final_status, meta, tattrs)

@@ -1,8 +1,8 @@
 """Calibration records in use, and raw -> SI conversion of acquired blocks.
 
-``lookup`` is the one place a run asks which calibration applies to each
-sensor. Until calibration (issue 5) stores measured records, it returns the
-nominal ones from the data sheets, marked ``nominal: true``. Conventions:
+Which calibration applies to each sensor is asked in one place,
+``rig.calibration.records.lookup`` (the newest valid record per sensor, else the
+data sheet's nominal one from ``nominal`` here, marked ``nominal: true``). Conventions:
 
     load_cell      sensitivity (V/V)/N,      offset V/V     force = (r - offset) / sensitivity
     strain_gauge   sensitivity = gage factor, offset V/V    NI quarter-bridge-I formula
@@ -49,16 +49,6 @@ def nominal(cfg: RigConfig) -> dict[str, CalRecord]:
         recs[name] = CalRecord(name, True, enc.sign * enc.si_per_count, enc.initial_value,
                                "counts", enc.units)
     return recs
-
-
-def lookup(cfg: RigConfig) -> dict[str, CalRecord]:
-    """The calibration record in use for each sensor (issue 5 plugs measured records in here)."""
-    # newest valid record per sensor, age warning, refusal on NI without a required one
-    # (unless calibration.use_raw_units), nominal on the simulated rig: see
-    # rig.calibration.records.records_for_run
-    from rig.calibration.records import records_for_run
-
-    return records_for_run(cfg)
 
 
 RAW_UNITS = {"sample": "1", "load_cell_ratio": "V/V", "strain_ratio": "V/V"}

@@ -20,8 +20,8 @@ err = Console(stderr=True, soft_wrap=True)
 
 def _version(value: bool) -> None:
     if value:
-        from rig import __version__
         from rig.runfile import git_commit
+        from rig.version import __version__
 
         console.print(f"rig {__version__} (git {git_commit()[:12]})", markup=False,
                       highlight=False)
@@ -462,12 +462,12 @@ def run_profile(
 
 def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | None:
     """Issue 18: the learned-feedforward record for this profile, rig and calibration."""
-    from rig import calrecords, profiles
+    from rig import profiles
     from rig.calibration import records as cal_records
     from rig.control import records as learned_records
 
     prof = profiles.load(profile, force_limit=cfg.limits.max_force_n)
-    return learned_records.find(cfg, prof, cal_records.embedded(calrecords.lookup(cfg), cfg))
+    return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
 
 
 # ---- rig calibrate / rig check (issue 5): the work is in rig.services.calibrate ----
@@ -512,7 +512,7 @@ def calibrate_loadcell(
     records_dir: _RecordsOpt = None,
 ) -> None:
     """Known masses, loading then unloading (>= 5 points): fit, spec figures, uncertainty."""
-    from rig.calibration.bench import open_bench
+    from rig.backends import open_bench
     from rig.calibration.loadcell import parse_mass, read_csv
     from rig.calibration.settings import settings_for
     from rig.services import calibrate as svc

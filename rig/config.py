@@ -19,7 +19,6 @@ from typing import Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from rig.calibration.settings import CalibrationSettings
 from rig.errors import InputError
 from rig.params import load_yaml_file
 
@@ -43,6 +42,88 @@ class _Strict(BaseModel):
     model_config = _STRICT_FINITE
 
 
+# ---- the calibration: section (used by rig.calibration) ----
+SENSORS = ("load_cell", "strain_gauge", "motor")  # what calibration.required may name
+
+
+class LoadCellCal(_Strict):
+    """Known-mass calibration of the load cell."""
+
+    gravity_m_s2: float = Field(9.80665, gt=9.7, lt=9.9, description="local g; set it for the lab")
+    gravity_rel_halfwidth: float = Field(
+        0.003, ge=0, le=1, description="0.3 % covers any lab on Earth with standard g; ~1e-5 once "
+                                 "the local g is set from a gravity map")
+    mass_rel_halfwidth: float = Field(1e-4, ge=0, le=1, description="reference-mass tolerance "
+                                                              "(OIML M1 ~ 5e-5 to 1e-4)")
+    average_s: float = Field(1.0, gt=0, le=600, description="bridge averaging time per point")
+    settle_s: float = Field(0.3, ge=0, le=600, description="discarded after placing a mass")
+    min_points: int = Field(5, ge=3, le=1000)
+    min_span_fraction: float = Field(0.2, gt=0, le=1, description="points must span this "
+                                                                  "fraction of full scale")
+    spec_nonlinearity_hysteresis_pct_fs: float = Field(0.5, gt=0, le=100)
+    spec_nonrepeatability_pct_fs: float = Field(0.1, gt=0, le=100)
+    saturation_fraction: float = Field(0.98, gt=0, le=1, description="a reading beyond this "
+                                                                     "fraction of the range is "
+                                                                     "saturated")
+
+
+class StrainCal(_Strict):
+    """Offset nulling and shunt calibration of the quarter-bridge gauge."""
+
+    shunt_resistor_ohm: float = Field(100000.0, gt=0, le=1e12)
+    shunt_rel_halfwidth: float = Field(0.001, ge=0, le=1, description="shunt resistor tolerance")
+    gauge_resistance_rel_halfwidth: float = Field(0.003, ge=0, le=1, description="Rg tolerance")
+    gage_factor_rel_halfwidth: float = Field(0.01, ge=0, le=1, description="gauge-factor tolerance "
+                                             "(the shunt cannot see it)")
+    tolerance: float = Field(0.05, gt=0, lt=1, description="|gain adjustment - 1| allowed")
+    average_s: float = Field(1.0, gt=0, le=600)
+    settle_s: float = Field(0.05, ge=0, le=600)
+
+
+class MotorCal(_Strict):
+    """Steps and ramps of demanded force with the arm on a static surface."""
+
+    step_levels_n: list[float] = Field(default_factory=lambda: [5.0, 10.0, 15.0, 20.0, 25.0,
+                                                                30.0, 35.0, 40.0])
+    step_hold_s: float = Field(0.15, gt=0.05, le=60)
+    ramp_s: float = Field(0.08, gt=0, le=60)
+    max_lag_s: float = Field(0.05, gt=0, le=1)
+
+    @field_validator("step_levels_n")
+    @classmethod
+    def _levels(cls, v: list[float]) -> list[float]:
+        if len(v) > 100 or any(not 0 < x <= 120 for x in v):
+            raise InputError("expected at most 100 forces in (0, 120] N")
+        return v
+
+
+class CalibrationSettings(_Strict):
+    """The ``calibration:`` section of a rig configuration."""
+
+    records_folder: Path | None = Field(None, strict=False,
+                                        description="default <data_folder>/calibrations")
+    max_age_days: float = Field(30.0, gt=0, le=36500,
+                                description="older records are used with a warning")
+    required: list[str] = Field(default_factory=lambda: ["load_cell", "strain_gauge"],
+                                description="sensors a real-hardware run refuses to go without")
+    use_raw_units: bool = Field(False, description="run on real hardware without records "
+                                                   "(data-sheet values, marked nominal)")
+    operator: str = Field("", description="default operator name (else the login name)")
+    load_cell: LoadCellCal = LoadCellCal()
+    strain_gauge: StrainCal = StrainCal()
+    motor: MotorCal = MotorCal()
+
+    @field_validator("required")
+    @classmethod
+    def _known(cls, v: list[str]) -> list[str]:
+        unknown = [s for s in v if s not in SENSORS]
+        if unknown:
+            raise InputError(f"unknown sensor {unknown[0]!r} (expected some of "
+                             f"{', '.join(SENSORS)})")
+        return v
+
+
+# ---- the rig ----
 class DriveOutput(_Strict):
     """Analog output (PCI-6229) carrying the torque demand to the drive."""
 

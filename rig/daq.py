@@ -1,13 +1,17 @@
 """The DAQ interface: what the torque loop and the acquisition process need from the cards.
 
-One abstract interface, two implementations chosen by ``open_daq`` from the
-rig configuration: ``rig.ni_daq`` (NI-DAQmx cards) and ``rig.sim_backend.daq``
-(the simulated rig). A config asking for NI never falls back to simulation:
-if the NI driver or cards are missing, ``open_daq`` raises.
+One abstract interface per side, two implementations, chosen by ``rig.backends`` (the
+only module naming the backends) from the rig configuration: ``rig.ni_backend``
+(NI-DAQmx cards) and ``rig.sim_backend`` (the simulated rig), packages with the same
+inner layout (``daq``: loop and acquisition sides; ``bench``: what calibrations read).
+A config asking for NI never falls back to simulation: if the NI driver or cards are
+missing, ``rig.backends.open_daq`` raises.
 
 Loop side (the run's process):  arm() -> wait_for_tick() -> write_volts() ...
 Acquisition side (its own process): open_reader(daq.reader_spec()) -> start()
 -> read() blocks of rows [sample, load_cell_ratio, (strain_ratio), counts...].
+Calibration bench (``Bench``): apply_mass, read_bridge, null_offset, shunt,
+drive_static, key_travel (docs/calibration.md).
 """
 
 from __future__ import annotations
@@ -92,34 +96,64 @@ class Reader(ABC):
         """After ``safe_stop``: remove the shared blocks the dead loop's process owned."""
 
 
-def open_daq(config: RigConfig, *, lockstep: bool = False,
-             on_line: Callable[[str], None] | None = None) -> Daq:
-    """The loop side for the configured backend (NI never falls back to simulation).
-
-    ``on_line`` hears about slow starts (the simulated rig compiling its model).
-    """
-    if config.backend == "ni":
-        from rig.ni_daq import NiDaq
-
-        if lockstep:
-            raise InputError("lockstep: only the simulated rig can run in lock-step")
-        return NiDaq(config)
-    if config.backend == "sim":
-        from rig.sim_backend.daq import SimDaq
-
-        return SimDaq(config, lockstep=lockstep, on_line=on_line)
-    raise InputError(f"backend: expected 'ni' or 'sim', got {config.backend!r}")
+# ---- the calibration bench side ----
+Live = Callable[[float], None] | None
+BRIDGES = ("load_cell", "strain_gauge")
 
 
-def open_reader(spec: dict[str, Any]) -> Reader:
-    """The acquisition side, in the acquisition process, from ``Daq.reader_spec()``."""
-    backend = spec.get("backend")
-    if backend == "ni":
-        from rig.ni_daq import NiReader
+def check_bridge(sensor: str) -> None:
+    if sensor not in BRIDGES:
+        raise InputError(f"sensor: expected one of {BRIDGES}, got {sensor!r}")
 
-        return NiReader(spec)
-    if backend == "sim":
-        from rig.sim_backend.daq import SimReader
 
-        return SimReader(spec)
-    raise InputError(f"backend: expected 'ni' or 'sim', got {backend!r}")
+def bridge_range(cfg: RigConfig, sensor: str) -> float:
+    """+- input range of a bridge channel, V/V."""
+    check_bridge(sensor)
+    ch = cfg.channels
+    mv = ch.load_cell.input_range_mv_per_v if sensor == "load_cell" else \
+        ch.strain_gauge.input_range_mv_per_v
+    return mv * 1e-3
+
+
+class Bench(ABC):
+    """The readings a calibration needs, on one rig."""
+
+    def __init__(self, cfg: RigConfig) -> None:
+        self.cfg = cfg
+        self.rate_hz = cfg.rates.acquisition_hz
+
+    @abstractmethod
+    def apply_mass(self, mass_kg: float, gravity_m_s2: float) -> None:
+        """The user placed ``mass_kg`` on the key top (the simulated bench loads its cell)."""
+
+    @abstractmethod
+    def read_bridge(self, sensor: str, seconds: float, live: Live = None) -> np.ndarray:
+        """Bridge ratio samples (V/V) for ``seconds``; ``live`` gets the running mean."""
+
+    @abstractmethod
+    def null_offset(self, sensor: str) -> dict[str, Any]:
+        """Bridge offset nulling with the sensor at rest; what the hardware reported."""
+
+    @abstractmethod
+    def shunt(self, sensor: str, on: bool, resistor_ohm: float) -> None:
+        """Engage or release the shunt-calibration resistor across the gauge arm."""
+
+    def driver_shunt_cal(self, sensor: str, resistor_ohm: float) -> float | None:
+        """The card driver's own shunt calibration; its gain adjustment (None if not available)."""
+        return None
+
+    @abstractmethod
+    def drive_static(self, demand_n: np.ndarray) -> np.ndarray:
+        """Hold each demand (N) for one control period with the arm on a static surface;
+        load-cell ratios (V/V) at the acquisition rate, ``samples_per_cycle`` per demand."""
+
+    @abstractmethod
+    def key_travel(self, force_n: np.ndarray) -> dict[str, np.ndarray]:
+        """Press the key with ``force_n`` (N, one per control period); counts per encoder."""
+
+    def truth(self) -> dict[str, dict[str, float]]:
+        """True sensor parameters (simulated bench only)."""
+        raise RuntimeError("only the simulated bench knows its sensors' true values")
+
+    def close(self) -> None:  # noqa: B027 - nothing to release by default
+        """Release cards and tasks."""

@@ -31,8 +31,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from rig import __version__
 from rig.errors import InputError
+from rig.version import __version__
 
 FORMAT = "rig-run"
 FORMAT_VERSION = 1

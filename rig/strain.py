@@ -14,6 +14,7 @@ import numpy as np
 
 from rig.bridge import add_ni_bridge_channel, ni_null_and_shunt
 from rig.config import StrainGauge
+from rig.errors import InputError
 
 
 def to_strain(ratio: np.ndarray | float, gage_factor: float, offset: float,
@@ -40,3 +41,12 @@ def ni_calibrate(task: Any, cfg: StrainGauge, name: str = "strain_gauge",
                  shunt_resistor_ohm: float = 100000.0) -> None:
     """Offset nulling and shunt calibration; bridge_resistance must be 350 (NI defaults to 120)."""
     ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.nominal_resistance_ohm)
+
+
+def shunt_equivalent_strain(gauge_ohm: float, gage_factor: float, shunt_ohm: float) -> float:
+    """Equivalent strain (m/m) of a shunt across a quarter-bridge gauge: -Rg/(GF (Rg + Rs))."""
+    for name, v in (("gauge_ohm", gauge_ohm), ("gage_factor", gage_factor),
+                    ("shunt_ohm", shunt_ohm)):
+        if not v > 0:
+            raise InputError(f"{name}: expected a positive value, got {v}")
+    return -gauge_ohm / (gage_factor * (gauge_ohm + shunt_ohm))

@@ -18,12 +18,14 @@ from typer.testing import CliRunner
 from rig import calrecords, config, profiles, runfile
 from rig.calibration import encoders, motor, records
 from rig.calibration import loadcell as lc
+from rig.calibration import records as cal_records
 from rig.calibration import strain as sg
-from rig.calibration.bench import NiBench, SimBench
 from rig.calibration.settings import CalibrationSettings
 from rig.cli import app
 from rig.daq import DaqFault
+from rig.ni_backend.bench import NiBench
 from rig.services import calibrate as svc
+from rig.sim_backend.bench import SimBench
 
 ROOT = Path(__file__).resolve().parents[1]
 MASSES = [0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0]
@@ -168,10 +170,10 @@ def test_strain_shunt_out_of_tolerance_is_refused(tmp_path: Path) -> None:
 
 def test_lookup_sim_nominal_then_new_records(tmp_path: Path) -> None:
     cfg = sim(tmp_path)
-    cals = calrecords.lookup(cfg)
+    cals = cal_records.lookup(cfg)
     assert all(r.nominal for r in cals.values())
     _, path = svc.calibrate_loadcell(cfg, MASSES)
-    cals = calrecords.lookup(cfg)
+    cals = cal_records.lookup(cfg)
     assert not cals["load_cell"].nominal and path.name in cals["load_cell"].source
     assert cals["strain_gauge"].nominal
     assert records.embedded(cals, cfg)[0]["content_hash"] in cals["load_cell"].source
@@ -187,8 +189,8 @@ def test_lookup_warns_on_old_records_and_refuses_ni_without_them(tmp_path: Path)
                               "data_folder": str(tmp_path / "ni")})
     with pytest.raises(records.MissingCalibration, match="no valid record for load_cell, "
                                                          "strain_gauge"):
-        calrecords.lookup(ni)
-    raw = calrecords.lookup(with_cal(ni, use_raw_units=True))
+        cal_records.lookup(ni)
+    raw = cal_records.lookup(with_cal(ni, use_raw_units=True))
     assert raw["load_cell"].nominal and "use_raw_units" in raw["load_cell"].source
 
 
@@ -216,11 +218,11 @@ def test_loop_feedforward_uses_the_motor_calibration_when_there_is_one(tmp_path:
 
     cfg = sim(tmp_path)
     forte = profiles.load(ROOT / "profiles" / "forte.yaml")
-    ff, what = run_svc.demand_source(cfg, records.embedded(calrecords.lookup(cfg), cfg))
+    ff, what = run_svc.demand_source(cfg, records.embedded(cal_records.lookup(cfg), cfg))
     assert what["kind"] == "advance" and what["lead_s"] == 0.008
     assert ff(forte, 0.05) == pytest.approx(float(forte.at(0.058)))
     result, path, _ = svc.calibrate_motor(cfg)
-    full = records.embedded(calrecords.lookup(cfg), cfg)
+    full = records.embedded(cal_records.lookup(cfg), cfg)
     assert [r["sensor"] for r in full] == ["motor"]
     ff, what = run_svc.demand_source(cfg, full)
     comp = result.compensation
@@ -661,5 +663,5 @@ def test_cli_loadcell_csv_interactive_and_text_mass(tmp_path: Path, monkeypatch)
     assert res.exit_code == 0 and "gain adjustment" in res.output
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        cals = calrecords.lookup(config.builtin_sim())
+        cals = cal_records.lookup(config.builtin_sim())
     assert cals["load_cell"].nominal  # records went to --records, not the default folder

@@ -23,7 +23,7 @@ from nidaqmx.task.collections import (
 )
 from nidaqmx.task.triggering import StartTrigger, Triggers
 
-from rig import config, daq
+from rig import backends, config
 from rig.daq import DaqFault
 
 TASKS: list[mock.MagicMock] = []
@@ -71,7 +71,7 @@ def by_name(name: str) -> mock.MagicMock:
 
 
 def test_loop_side_paces_on_hwtsp_and_writes_the_drive(ni) -> None:
-    d = daq.open_daq(ni_config())
+    d = backends.open_daq(ni_config())
     try:
         d.arm()
         pace, ao = by_name("rig-pacing"), by_name("rig-drive")
@@ -97,9 +97,9 @@ def test_loop_side_paces_on_hwtsp_and_writes_the_drive(ni) -> None:
 
 
 def test_reader_sets_up_bridges_and_clocked_encoders(ni) -> None:
-    d = daq.open_daq(ni_config())
+    d = backends.open_daq(ni_config())
     try:
-        r = daq.open_reader(d.reader_spec())
+        r = backends.open_reader(d.reader_spec())
         ai = by_name("rig-bridges")
         calls = ai.ai_channels.add_ai_bridge_chan.call_args_list
         assert calls[0].args == ("SC1Mod1/ai0",)
@@ -170,9 +170,9 @@ def test_ni_config_never_falls_back_to_simulation() -> None:
         pytest.skip("NI-DAQmx present with a device error; this test is for driverless hosts")
     except nidaqmx.errors.Error:
         with pytest.raises(DaqFault, match="not available"):
-            daq.open_daq(ni_config())
+            backends.open_daq(ni_config())
         with pytest.raises(ValueError, match="lockstep"):
-            daq.open_daq(ni_config(), lockstep=True)
+            backends.open_daq(ni_config(), lockstep=True)
         return
     pytest.skip("NI-DAQmx is installed; covered by the hardware test")
 
@@ -183,7 +183,7 @@ def test_ni_hardware_pacing_ticks() -> None:
         nidaqmx.Task().close()
     except nidaqmx.errors.DaqNotFoundError:
         pytest.skip("no NI-DAQmx driver on this machine (DaqNotFoundError)")
-    d = daq.open_daq(ni_config(channels={"pacing": {"start_trigger": ""}}))
+    d = backends.open_daq(ni_config(channels={"pacing": {"start_trigger": ""}}))
     try:
         d.arm()
         ticks = [d.wait_for_tick() for _ in range(50)]
@@ -198,9 +198,9 @@ def test_supervisor_zeroes_the_drive_output_with_a_new_task(ni) -> None:
     from rig.supervisor import make_safe
 
     cfg = ni_config(drive={"port": "sim"})  # the serial side is tested in test_supervisor
-    d = daq.open_daq(ni_config())
+    d = backends.open_daq(ni_config())
     try:
-        r = daq.open_reader(d.reader_spec())
+        r = backends.open_reader(d.reader_spec())
         make_safe(r, cfg)
         task = by_name("rig-safe-stop")
         task.ao_channels.add_ao_voltage_chan.assert_called_once_with(

@@ -425,3 +425,28 @@ def test_user_effect_adds_a_state_with_its_own_dynamics(tmp_path, forte, forte_r
     assert res.units["hammer_maxwell_rest_angle"] == "rad"
     held = ActionModel(effects=[{ref: {"k": 0.5, "tau": 0.1}}]).simulate(forte, duration=0.07)
     assert held.success and held.strike_speed < 0.97 * forte_rigid.strike_speed
+
+
+def test_an_integrators_edit_invalidates_the_stiff_integrators_cache(tmp_path):
+    """integrators_stiff's compiled code inlines integrators' compiled helpers (force_at,
+    the Hermite interpolant): an edit of integrators.py (kernel.py older) drops its caches
+    too; caches newer than every callee stay."""
+    import os
+
+    import rig.model as rm
+
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    t0 = 1_700_000_000.0
+    for name, t in (("kernel.py", t0), ("integrators.py", t0 + 1000)):
+        (tmp_path / name).write_text("")
+        os.utime(tmp_path / name, (t, t))
+    files = {"stiff_stale": ("integrators_stiff.f-1.py311.nbi", t0 + 500),
+             "stiff_fresh": ("integrators_stiff.f-2.py311.nbi", t0 + 2000),
+             "explicit_ok": ("integrators.f-3.py311.nbi", t0 + 500)}  # calls only the kernel
+    for fname, t in files.values():
+        (cache / fname).write_bytes(b"")
+        os.utime(cache / fname, (t, t))
+    rm._drop_stale_caches(tmp_path)
+    left = {p.name for p in cache.iterdir()}
+    assert left == {files["stiff_fresh"][0], files["explicit_ok"][0]}

@@ -16,8 +16,7 @@ from typer.testing import CliRunner
 
 from rig import config, motor_torque, profiles, runfile
 from rig.analysis import measurement as ms
-from rig.calibration.records import MissingCalibration
-from rig.calrecords import lookup
+from rig.calibration.records import MissingCalibration, lookup
 from rig.cli import app
 from rig.errors import InputError
 from rig.model.action import ActionModel

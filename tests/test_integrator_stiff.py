@@ -11,7 +11,8 @@ import pytest
 from rig import profiles
 from rig.model import kernel as k
 from rig.model.action import ActionModel, SimResult
-from rig.model.integrators import DormandPrince, ScipyIntegrator, by_name
+from rig.model.integration import by_name
+from rig.model.integrators import DormandPrince, ScipyIntegrator
 from rig.model.integrators_stiff import (
     ROS_A,
     ROS_ALPHA,
@@ -131,7 +132,7 @@ def full_model() -> ActionModel:
 
 def test_jacobian_and_spectral_radius(full_model: ActionModel) -> None:
     arrays = full_model.packed.arrays
-    ws = full_model._workspace()
+    ws = full_model.workspace()
     y = full_model.rest_state()
     y[k.NQ + k.QH] = 2.0  # moving hammer
     y[k.NQ + k.QK] = -0.5

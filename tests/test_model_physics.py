@@ -39,7 +39,7 @@ INTEGRATORS = [
 
 def run(model: ActionModel, y0: np.ndarray, t1: float, n_out: int = 50) -> np.ndarray:
     out_t = np.linspace(0.0, t1, n_out)
-    adv = model.integrator.advance(model.packed.arrays, model._workspace(), y0, 0.0, t1, 1e-5,
+    adv = model.integrator.advance(model.packed.arrays, model.workspace(), y0, 0.0, t1, 1e-5,
                                    np.zeros(1), np.zeros(1), out_t, model.atol * 1e-3)
     assert adv.success, adv.message
     return adv.out
@@ -142,7 +142,7 @@ def test_rest_state_is_a_torque_balance(rigid_model):
 
 def _contact_moment(model, y, cid, fn, px, pivot):
     """Moment about the pivot of contact cid's normal force, from its geometry in the kernel."""
-    ws = model._workspace()
+    ws = model.workspace()
     q, qd = y[: k.NQ], y[k.NQ :]
     org, phi, w, vO, JO, Jp, aO, al, cs = ws[:9]
     arrays = model.packed.arrays

@@ -10,7 +10,7 @@ from typing import Any
 
 from rig import config
 from rig.sim_backend.drive_pty import SimDrive
-from rig.sim_backend.rig import DriveState
+from rig.sim_backend.drive_state import DriveState
 from rig.supervisor import ControllerWatch, make_safe
 
 

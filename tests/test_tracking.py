@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import config, profiles
+from rig import backends, config, profiles
 from rig.control import feedback, ilc, offline
 
 CFG = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"}})
@@ -210,7 +210,7 @@ def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback(monkeypatch):
     # volts, write) on the NI backend through autospecs of nidaqmx (tests/test_daq_ni.py)
     import test_daq_ni as tni
 
-    from rig import daq, loadcell, motor_torque
+    from rig import loadcell, motor_torque
     from rig.control import records
 
     readers = tni.ni.__wrapped__(monkeypatch)
@@ -220,10 +220,10 @@ def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback(monkeypatch):
     rec = records.build(cfg, p, [], u0, [err], err, {}, None)
     ff, _ = records.demand_source(rec)
     ctl = feedback.LoadCellPI()
-    d = daq.open_daq(cfg)
+    d = backends.open_daq(cfg)
     try:
         d.arm()
-        reader = daq.open_reader(d.reader_spec())
+        reader = backends.open_reader(d.reader_spec())
         lc = cfg.channels.load_cell
         sens = loadcell.nominal_sensitivity(lc)
         limiter = motor_torque.Limiter(cfg.limits, 1 / HZ)

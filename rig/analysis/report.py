@@ -67,8 +67,8 @@ class Provenance:
         return str(self.run_attrs.get("kind", "measured"))
 
     def html(self) -> str:
-        from rig import __version__
         from rig.runfile import git_commit
+        from rig.version import __version__
 
         a = self.run_attrs
         rows = [["command line", self.command],

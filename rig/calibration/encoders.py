@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from rig.calibration.bench import Bench
 from rig.config import RigConfig
+from rig.daq import Bench
 
 UNITS = {"raw": "counts", "key_dip": "m", "angle": "rad", "slope": "rad/m"}
 

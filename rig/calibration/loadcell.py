@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from rig.calibration.bench import Bench, bridge_range
 from rig.calibration.settings import LoadCellCal
 from rig.config import RigConfig
+from rig.daq import Bench, bridge_range
 from rig.errors import InputError
 
 

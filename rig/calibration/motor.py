@@ -30,9 +30,9 @@ import numpy as np
 from scipy import optimize, signal
 
 from rig import loadcell as loadcell_mod
-from rig.calibration.bench import Bench
 from rig.calibration.settings import MotorCal
 from rig.config import RigConfig
+from rig.daq import Bench
 from rig.errors import InputError
 from rig.profiles import Profile
 

@@ -10,7 +10,7 @@ on another backend (or another simulated seed), is not valid and is skipped.
 
     path = write(folder, build("load_cell", cfg, identifier, operator, ...))
     rec, path = newest_valid(folder, "load_cell", cfg)
-    cals = records_for_run(cfg)        # what calrecords.lookup returns
+    cals = records_for_run(cfg)        # what lookup returns
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from rig import __version__
 from rig.calibration.settings import records_folder, settings_for
 from rig.calrecords import CalRecord, nominal
 from rig.config import RigConfig
 from rig.errors import InputError
+from rig.version import __version__
 
 FORMAT = "rig-calibration"
 FORMAT_VERSION = 1
@@ -43,14 +43,14 @@ class CalibrationAgeWarning(UserWarning):
     """A record in use is older than calibration.max_age_days."""
 
 
-def _clean(obj: Any) -> Any:
+def json_ready(obj: Any) -> Any:
     """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_ready(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
+        return [json_ready(v) for v in obj]
     if hasattr(obj, "tolist"):
-        return _clean(obj.tolist())
+        return json_ready(obj.tolist())
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, Path):
@@ -89,7 +89,7 @@ def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: 
         "operator": operator, "rig": rig_identity(cfg), "software_version": __version__,
         "git_commit": git_commit(), "units": units, "raw_points": raw_points, "fit": fit,
         "uncertainty": uncertainty, "checks": checks or {}, **(extra or {})}
-    rec = _clean(rec)
+    rec = json_ready(rec)
     rec["content_hash"] = content_hash(rec)
     return rec
 
@@ -167,7 +167,7 @@ def to_calrecord(rec: dict[str, Any], path: Path) -> CalRecord:
 
 
 def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str, CalRecord]:
-    """Calibration records a run uses (the body of ``calrecords.lookup``).
+    """Calibration records a run uses (the body of ``lookup``).
 
     Newest valid record per sensor; a record older than ``max_age_days`` is
     used with a ``CalibrationAgeWarning``. On real hardware a sensor listed in
@@ -221,3 +221,10 @@ def embedded(cals: dict[str, CalRecord], cfg: RigConfig) -> list[dict[str, Any]]
         name = rec.source.split(" ", 2)[1]
         out.append(read(folder / name))
     return out
+
+
+def lookup(cfg: RigConfig) -> dict[str, CalRecord]:
+    """The calibration record in use for each sensor: the one place a run asks (newest valid
+    record per sensor with an age warning, refusal on NI without a required one unless
+    calibration.use_raw_units, nominal on the simulated rig)."""
+    return records_for_run(cfg)

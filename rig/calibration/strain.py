@@ -26,10 +26,11 @@ from typing import Any
 import numpy as np
 
 from rig import strain as strain_mod
-from rig.calibration.bench import Bench, bridge_range, shunt_equivalent_strain
 from rig.calibration.settings import StrainCal
 from rig.config import RigConfig
+from rig.daq import Bench, bridge_range
 from rig.errors import InputError
+from rig.strain import shunt_equivalent_strain
 
 UNITS = {"raw": "V/V", "calibrated": "m/m", "sensitivity": "gauge factor (1)",
          "offset": "V/V", "strain": "m/m", "resistance": "ohm"}

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from rig import profiles
-from rig.calibration.records import _clean, content_hash, rig_identity
+from rig.calibration.records import content_hash, json_ready, rig_identity
 from rig.config import RigConfig
 from rig.errors import InputError
 
@@ -58,7 +58,7 @@ def build(cfg: RigConfig, profile: profiles.Profile, calibration_records: list[d
           learning_filter: dict[str, Any], stopped: str | None,
           created: _dt.datetime | None = None) -> dict[str, Any]:
     when = (created or _dt.datetime.now(_dt.UTC)).isoformat()
-    rec: dict[str, Any] = _clean({
+    rec: dict[str, Any] = json_ready({
         "format": FORMAT, "format_version": FORMAT_VERSION, "created": when,
         "profile": {"name": profile.name, "source": str(profile.source),
                     "content_hash": profile_hash(profile)},

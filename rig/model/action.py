@@ -31,74 +31,18 @@ from rig.errors import InputError
 from rig.model import assembly, restcache
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
-from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator, by_name
+from rig.model.integration import by_name
+from rig.model.integrators import Advance, DormandPrince, ExtraForce, Integrator
+from rig.model.vocabulary import (  # noqa: E402,F401 - the vocabulary, re-exported
+    ANGLE_CHANNELS,
+    CHANNEL_DOCS,
+    CHANNEL_UNITS,
+    COORDINATES,
+    EVENT_DOCS,
+    EVENT_ORDER,
+)
 from rig.params import Parameters, load_yaml_file
 
-COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2")
-ANGLE_CHANNELS = {
-    "key_angle": k.QK,
-    "whippen_angle": k.QW,
-    "jack_angle": k.QJ,
-    "repetition_angle": k.QR,
-    "hammer_angle": k.QH,
-}
-CHANNEL_UNITS: dict[str, str] = {
-    "time": "s",
-    "force": "N",
-    **dict.fromkeys(ANGLE_CHANNELS, "rad"),
-    **{n.replace("_angle", "_angular_velocity"): "rad/s" for n in ANGLE_CHANNELS},
-    "hammer_head_velocity": "m/s",
-    "hammer_head_x": "m",
-    "hammer_head_y": "m",
-    "key_dip": "m",
-    "contact_force": "N",
-    "contact_friction": "N",
-    "contact_penetration": "m",
-    "contact_penetration_rate": "m/s",
-    "contact_slip": "m/s",
-    "contact_point_x": "m",
-    "shank_strain": "m/m",
-    "shank_tip_deflection": "m",
-    "key_lift": "m",
-}
-CHANNEL_DOCS: dict[str, str] = {
-    "force": "force pressing the key top, downward",
-    "key_angle": "key, ground -> key frame, counter-clockwise",
-    "whippen_angle": "whippen, ground -> whippen frame",
-    "jack_angle": "jack relative to the whippen",
-    "repetition_angle": "repetition lever relative to the whippen",
-    "hammer_angle": "hammer, ground -> hammer frame",
-    "hammer_head_velocity": "vertical velocity of the striking felt's centre, + toward the string",
-    "hammer_head_x": "ground x of the striking felt's centre",
-    "hammer_head_y": "ground y of the striking felt's centre",
-    "key_dip": "downward travel of the key top (Pk2) from rest",
-    "contact_force": "normal force per contact (columns: contact ids)",
-    "contact_friction": "tangential friction force per contact",
-    "contact_penetration": "penetration per contact, + = touching",
-    "contact_penetration_rate": "rate of penetration per contact, + = approaching",
-    "contact_slip": "tangential slip speed per contact",
-    "contact_point_x": "ground x of each contact's point",
-    "shank_strain": "axial strain at the strain gauge (Eq. 4.1), + = tension",
-    "shank_tip_deflection": "shank tip's transverse deflection in the shank frame",
-    "key_lift": "key pivot's height above its rest on the balance rail (prismatic coordinate)",
-}
-CHANNEL_DOCS.update({n.replace("_angle", "_angular_velocity"):
-                     f"rate of change of {n} ({CHANNEL_DOCS[n].split(',')[0]})"
-                     for n in ANGLE_CHANNELS if n in CHANNEL_DOCS})
-
-# event name -> (contact id, direction), + = contact closes, - = opens
-EVENT_DOCS: dict[str, str] = {
-    "key_starts": "key starts to move (key top travel exceeds the threshold)",
-    "toe_meets_button": "jack toe meets the let-off button (contact 8 closes)",
-    "let_off": "the jack escapes: it leaves the knuckle after its toe met the button "
-               "(contact 7 opens)",
-    "strike": "hammer meets the string (contact 12 closes)",
-    "string_release": "hammer leaves the string (contact 12 opens)",
-    "check": "back check catches the hammer tail after the string release (contact 4 closes)",
-    "key_bottom": "key reaches its front felt (contact 2 closes)",
-    "key_release": "key leaves its front felt for good (contact 2 opens for the last time)",
-}
-EVENT_ORDER = tuple(EVENT_DOCS)
 # rest states by equations_key: models with identical equations (a fit varying an input
 # or sensor parameter) settle the action once
 _REST_CACHE: dict[bytes, np.ndarray] = {}
@@ -394,7 +338,7 @@ class ActionModel:
         h.update(repr([e.describe() for e in self.python_forces]).encode())
         return h.digest()
 
-    def _workspace(self) -> tuple[np.ndarray, ...]:
+    def workspace(self) -> tuple[np.ndarray, ...]:
         return k.make_workspace(self.packed.n_frames, self.packed.n_contacts)
 
     def _table_state(self) -> np.ndarray:
@@ -409,7 +353,7 @@ class ActionModel:
 
     def accelerations(self, y: np.ndarray, force: float = 0.0) -> np.ndarray:
         """Generalized accelerations at state y (9 coordinates) under a key force (N)."""
-        ws = self._workspace()
+        ws = self.workspace()
         dy = np.zeros(k.NY)
         k.rhs(0.0, np.asarray(y, dtype=float), float(force), self.packed.arrays, ws, dy)
         return dy[k.NQ :].copy()
@@ -417,7 +361,7 @@ class ActionModel:
     def energy(self, y: np.ndarray) -> tuple[float, float, float]:
         """(kinetic, gravitational potential, shank strain) energy in J at state y."""
         kin, pot, ela = k.energy(np.asarray(y, dtype=float), self.packed.arrays,
-                                 self._workspace())
+                                 self.workspace())
         return float(kin), float(pot), float(ela)
 
     # -- rest state ------------------------------------------------------------------
@@ -455,7 +399,7 @@ class ActionModel:
         # compiles one integrator, not two (the polish below makes the result the same)
         own = extra is not None or self.integrator.name in SETTLE_WITH_OWN_INTEGRATOR
         integ = self.integrator if own else DormandPrince(rtol=1e-6, max_step=1e-3)
-        adv = integ.advance(arrays or self.packed.arrays, self._workspace(), self._table_state(),
+        adv = integ.advance(arrays or self.packed.arrays, self.workspace(), self._table_state(),
                             0.0, 0.4, 1e-5, np.zeros(1), np.zeros(1), np.zeros(0), self.atol,
                             extra)
         y = adv.y.copy()
@@ -467,7 +411,7 @@ class ActionModel:
         """Solve accelerations (and effect states' rates) = 0 at zero velocity from y."""
         arrays = arrays or self.packed.arrays
         active = self.active if active is None else active
-        ws = self._workspace()
+        ws = self.workspace()
         extra = self.extra_force()
         idx = np.r_[np.flatnonzero(active), np.arange(k.NY, self.n_state)]
         dy = np.zeros(self.n_state)
@@ -540,7 +484,7 @@ class ActionModel:
         y[k.QYK] = 0.0
         arrays = tuple(a.copy() for a in self.packed.arrays)
         base = float(arrays[2][row, side, k.C_Y])
-        ws, dy = self._workspace(), np.zeros(k.NY)
+        ws, dy = self.workspace(), np.zeros(k.NY)
         extra = self.extra_force()
         q_force = extra(0.0, y)[0] if extra is not None else np.zeros(k.NQ)
 
@@ -655,9 +599,9 @@ class ActionModel:
         xo = np.zeros((k.N_X, n))
         co = np.zeros((k.N_CONTACT_OUT, n, self.packed.n_contacts))
         if n:
-            k.sample_outputs(self.packed.arrays, self._workspace(), states, force,
+            k.sample_outputs(self.packed.arrays, self.workspace(), states, force,
                              self._head_pt, self._gauge, xo, co)
-        rest_keytop = self._keytop_rest()
+        rest_keytop = self.keytop_rest()
         ch: dict[str, np.ndarray] = {"time": time.copy(), "force": force.copy()}
         for name, qi in ANGLE_CHANNELS.items():
             ch[name] = states[:, qi].copy()
@@ -682,11 +626,11 @@ class ActionModel:
                 ch[f"{e.name}_{st.name}"] = states[:, col].copy()
         return ch
 
-    def _keytop_rest(self) -> float:
+    def keytop_rest(self) -> float:
         rest = self.rest_state()[None, :]
         xo = np.zeros((k.N_X, 1))
         co = np.zeros((k.N_CONTACT_OUT, 1, self.packed.n_contacts))
-        k.sample_outputs(self.packed.arrays, self._workspace(), rest, np.zeros(1),
+        k.sample_outputs(self.packed.arrays, self.workspace(), rest, np.zeros(1),
                          self._head_pt, self._gauge, xo, co)
         return float(xo[k.X_KEYTOP_Y, 0])
 
@@ -723,7 +667,7 @@ class Stepper:
         self.y = np.array(y0, dtype=float)
         self.t = float(t0)
         self.h = 1e-5
-        self._ws = model._workspace()
+        self._ws = model.workspace()
         self._times: list[np.ndarray] = []
         self._states: list[np.ndarray] = []
         self._forces: list[np.ndarray] = []

@@ -180,13 +180,13 @@ def shank_first_mode(arrays: tuple[np.ndarray, ...], n_frames: int, params: Para
     qq = np.zeros(k.NQ)
     for e in range(arrays[5].shape[0]):
         f, m, inertia, cx, cy = arrays[5][e]
-        k._mass_element(int(f), m, inertia, cx, cy, 0.0, cs, w, JO, Jp, aO, al, mm, qq)
+        k.mass_element(int(f), m, inertia, cx, cy, 0.0, cs, w, JO, Jp, aO, al, mm, qq)
     kf = org.shape[0] - 1
     ch, sh = math.cos(y[k.QH]), math.sin(y[k.QH])
     for p in range(arrays[6].shape[0]):
-        k._beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, org, phi, w, vO, JO, Jp,
+        k.beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, org, phi, w, vO, JO, Jp,
                         aO, al, cs, ch, sh, False)
-        k._mass_element(kf, arrays[6][p, 1], arrays[6][p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
+        k.mass_element(kf, arrays[6][p, 1], arrays[6][p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
                         aO, al, mm, qq)
     mh = mm[np.ix_(idx, idx)]
     ln, ea, ej = sp[k.S_L], sp[k.S_EA], sp[k.S_EJ]

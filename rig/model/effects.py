@@ -448,7 +448,6 @@ BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (
     FeltHysteresis, CompliantString)}
 
 
-import rig.model.fingertip  # noqa: E402,F401  (registers the fingertip effect in BUILTIN)
 
 
 def register(cls: type[Effect]) -> type[Effect]:

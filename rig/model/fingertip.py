@@ -126,7 +126,7 @@ class Fingertip(Effect):
         from rig.model import kernel as k
 
         self._motion = None  # the rest state is found without the finger (pulp relaxed)
-        rest = model._keytop_rest()
+        rest = model.keytop_rest()
         sp = model.packed.arrays[0]
         t = np.asarray(profile.time, float)
         d = np.asarray(profile.force, float)
@@ -235,7 +235,7 @@ BUILTIN[Fingertip.name] = Fingertip
 def result_states(result: SimResult) -> np.ndarray | None:
     """The state rows (angles and rates) of a simulated result, rebuilt from its channels."""
     from rig.model import kernel as k
-    from rig.model.action import ANGLE_CHANNELS
+    from rig.model.vocabulary import ANGLE_CHANNELS
 
     ch = result.channels
     n = result.time.size

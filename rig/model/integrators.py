@@ -373,18 +373,3 @@ class ScipyIntegrator:
         out = sol.sol(out_t).T if out_t.size else np.empty((0, y0.shape[0]))
         return Advance(sol.y[:, -1].copy(), out, step, int(sol.t.size - 1), 0, counter[0],
                        status)
-
-
-def by_name(name: str, rtol: float = 1e-6, max_step: float = 2e-4) -> Integrator:
-    """Integrator from a CLI/YAML name: rosenbrock, dopri54, rk4, or scipy-<method>."""
-    if name == "dopri54":
-        return DormandPrince(rtol=rtol, max_step=max_step)
-    if name == "rk4":
-        return RungeKutta4()
-    if name == "rosenbrock":
-        from rig.model.integrators_stiff import Rosenbrock
-        return Rosenbrock(rtol=rtol, max_step=max_step)
-    if name.startswith("scipy-"):
-        return ScipyIntegrator(method=name.split("-", 1)[1], rtol=rtol, max_step=max_step)
-    raise InputError(f"integrator: expected rosenbrock, dopri54, rk4 or scipy-<method>, got "
-                     f"{name!r}")

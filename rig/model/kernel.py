@@ -117,7 +117,7 @@ def _shank_point(xi, q, qd, sp):
 
 
 @njit(cache=True, inline="always")
-def _beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
+def beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
     """Frame k = cross-section of the shank at distance xi from its root."""
     th = q[QH]
     wh = qd[QH]
@@ -246,9 +246,9 @@ def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
     w[F_HAMMER] = qd[QH]
     Jp[F_HAMMER, QH] = 1.0
     # head: carried at the shank's free end (its frame origin is the shank tip)
-    _beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, True)
+    beam_section(sp[S_L], q, qd, sp, F_HEAD, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, True)
     for s in range(sec_xi.shape[0]):
-        _beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al,
+        beam_section(sec_xi[s], q, qd, sp, N_RIGID_FRAMES + s, org, phi, w, vO, JO, Jp, aO, al,
                       cs, ch, sh, True)
 
 
@@ -439,7 +439,7 @@ def joint_torque(omega, e, f1, f2, wt):
 
 
 @njit(cache=True, inline="always")
-def _mass_element(f, m, inertia, cx, cy, g, cs, w, JO, Jp, aO, al, M, Q):
+def mass_element(f, m, inertia, cx, cy, g, cs, w, JO, Jp, aO, al, M, Q):
     rx = cs[f, 0] * cx - cs[f, 1] * cy
     ry = cs[f, 1] * cx + cs[f, 0] * cy
     wf = w[f]
@@ -520,7 +520,7 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
     """Mass matrix, gravity and velocity-product terms of the flexible shank's Gauss
     particles (xi, mass, rotary inertia) on the hammer block.
 
-    The same sums as a particle frame per Gauss point through _mass_element, done in
+    The same sums as a particle frame per Gauss point through mass_element, done in
     the hammer frame: rotation leaves the dot products unchanged, so only gravity
     needs the hammer's angle (R^T y = (sin, cos)).
     """
@@ -575,7 +575,7 @@ def _inertia(q, qd, g, model, ws):
             M[a, b] = 0.0
     # rigid mass elements: frame, m, I, cx, cy
     for e in range(me.shape[0]):
-        _mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
+        mass_element(int(me[e, 0]), me[e, 1], me[e, 2], me[e, 3], me[e, 4], g,
                       cs, w, JO, Jp, aO, al, M, Q)
     if sp[S_FLEX] > 0.5:
         _shank_inertia(q, qd, sp, beam, g, cs[F_HAMMER, 0], cs[F_HAMMER, 1], M, Q, jb)
@@ -699,7 +699,7 @@ def energy(y, model, ws):
         ch = math.cos(q[QH])
         sh = math.sin(q[QH])
         for p in range(beam.shape[0]):
-            _beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
+            beam_section(beam[p, 0], q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh,
                           False)
             pot += beam[p, 1] * g * org[k, 1]
         ln = sp[S_L]

@@ -46,7 +46,7 @@ def folder() -> Path | None:
 
 @functools.cache
 def _code_stamp() -> bytes:
-    from rig import __version__
+    from rig.version import __version__
 
     h = hashlib.sha1(f"{__version__} numpy {np.__version__}".encode())
     here = Path(__file__).resolve().parent

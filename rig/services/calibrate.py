@@ -11,11 +11,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from rig.backends import open_bench
 from rig.calibration import loadcell as lc
 from rig.calibration import records
-from rig.calibration.bench import Bench, open_bench
 from rig.calibration.settings import operator_name, records_folder, settings_for
 from rig.config import RigConfig
+from rig.daq import Bench
 
 Live = Callable[[float], None] | None
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, profiles, runfile
+from rig import profiles, runfile
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.control import ilc
@@ -73,7 +73,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
         raise InputError(f"--learn: expected at least 1 trial, got {n}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     hz = cfg.rates.control_hz
-    full_records = cal_records.embedded(calrecords.lookup(cfg), cfg)
+    full_records = cal_records.embedded(cal_records.lookup(cfg), cfg)
     t = grid(profile, hz)
     reference = np.array([profile.at(x) for x in t])
     prior = learned_records.find(cfg, profile, full_records) if use_learned else None

@@ -37,12 +37,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from rig import calrecords, loadcell, motor_torque, pacing, profiles, runfile
+from rig import loadcell, motor_torque, pacing, profiles, runfile
 from rig.acquisition import COMMAND_DOCS, COMMAND_UNITS, run_acquisition
+from rig.backends import open_daq
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
-from rig.daq import Daq, open_daq
+from rig.daq import Daq
 from rig.drive import Drive, DriveError, DriveMonitor
 from rig.errors import InputError
 
@@ -310,7 +311,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     if cfg.backend == "ni" and cfg.drive.port == "sim":
         raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
     ctl = controller or load_controller(cfg.loop.controller)
-    cals = calrecords.lookup(cfg)
+    cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = demand_source(cfg, full_records)
     # ---- issue 18 hook: a learned feedforward table replaces the compensation ----

@@ -31,9 +31,10 @@ from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
 from rig.model.action import ActionModel
+from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
 from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
-from rig.sim_backend.rig import DriveState, SimRig
+from rig.sim_backend.rig import SimRig
 
 CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
 BUILD_NOTICE_S = 3.0  # s: a plant still building its model after this is reported (on_line)
@@ -66,7 +67,7 @@ class SimDaq(Daq):
         self.fifo = SharedFifo(cap, row_width(config))
         if self.lockstep:
             self.rig = SimRig(config, drive_state, model)
-            self.drive_state: DriveState | SharedDriveState = self.rig.drive_state
+            self.drive_state: DriveStatus = self.rig.drive_state
             return
         if drive_state is not None or model is not None:
             self.fifo.close()

@@ -16,16 +16,16 @@ import threading
 import tty
 
 from rig.config import DriveLink
-from rig.sim_backend.plant import DRIVE_LOG_ENV, DriveLog, SharedDriveState
-from rig.sim_backend.rig import DriveState
+from rig.sim_backend.drive_state import DriveState, DriveStatus
+from rig.sim_backend.plant import DRIVE_LOG_ENV, DriveLog
 
 
 class SimDrive:
     """The drive's side of the serial link; ``port`` is the pty path to open with pyserial."""
 
-    def __init__(self, cfg: DriveLink, state: DriveState | SharedDriveState | None = None) -> None:
+    def __init__(self, cfg: DriveLink, state: DriveStatus | None = None) -> None:
         self.cfg = cfg
-        self.state: DriveState | SharedDriveState = state or DriveState()
+        self.state: DriveStatus = state or DriveState()
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         self.port = os.ttyname(self.slave)

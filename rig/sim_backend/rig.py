@@ -10,8 +10,6 @@ faulted (see ``DriveState``, shared with the simulated serial drive).
 
 from __future__ import annotations
 
-import threading
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -20,28 +18,15 @@ from rig.config import RigConfig
 from rig.errors import InputError
 from rig.model.action import ANGLE_CHANNELS, ActionModel
 from rig.sim_backend.drive_model import DriveModel
-from rig.sim_backend.plant import SharedDriveState
+from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.sensors import SensorSet
-
-
-@dataclass
-class DriveState:
-    """What the simulated drive is doing; shared by the pty drive and the rig."""
-
-    enabled: bool = False
-    fault: int = 0
-    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-
-    @property
-    def pushing(self) -> bool:
-        return self.enabled and self.fault == 0
 
 
 class SimRig:
     """The simulated action, drive and sensors (one writer of the simulated card buffer)."""
 
     def __init__(self, config: RigConfig,
-                 drive_state: DriveState | SharedDriveState | None = None,
+                 drive_state: DriveStatus | None = None,
                  model: ActionModel | None = None) -> None:
         self.config = config
         rate = config.rates.acquisition_hz
@@ -58,7 +43,7 @@ class SimRig:
         if self.strain_on and "flexible_shank" not in self.model.effect_names:
             raise InputError("sim.effects: the strain gauge needs the flexible_shank effect "
                              "(or set channels.strain_gauge.enabled: false)")
-        self.drive_state: DriveState | SharedDriveState = drive_state or DriveState(enabled=True)
+        self.drive_state: DriveStatus = drive_state or DriveState(enabled=True)
         self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
                                 config.sim.process_time_unit_s, self.model.params)
         self.sensors = SensorSet.from_config(config)

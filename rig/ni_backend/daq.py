@@ -38,7 +38,7 @@ from rig.daq import Daq, DaqFault, Reader, Tick
 OVERFLOW_CODES = {-200279, -200222, -200141, -201314, -200010, -200361}
 
 
-def _new_task(name: str) -> Any:
+def new_task(name: str) -> Any:
     """A task, or a one-line error when there is no NI driver (never a simulation)."""
     try:
         return nidaqmx.Task(name)
@@ -54,7 +54,7 @@ class NiDaq(Daq):
 
     def __init__(self, config: RigConfig) -> None:
         super().__init__(config)
-        _new_task("rig-probe").close()  # no driver or cards: fail now, before anything starts
+        new_task("rig-probe").close()  # no driver or cards: fail now, before anything starts
         self.feedback = shared_memory.SharedMemory(create=True, size=16)
         self._fb = np.ndarray((2,), np.float64, self.feedback.buf)
         self._fb[:] = (-1.0, 0.0)
@@ -71,13 +71,13 @@ class NiDaq(Daq):
     def arm(self) -> None:
         cfg = self.config
         out = cfg.channels.drive_output
-        self.ao = _new_task("rig-drive")
+        self.ao = new_task("rig-drive")
         self.ao.ao_channels.add_ao_voltage_chan(out.physical_channel, min_val=out.min_volts,
                                                 max_val=out.max_volts)
         self.writer = nidaqmx.stream_writers.AnalogSingleChannelWriter(self.ao.out_stream)
         self.ao.start()
         self.writer.write_one_sample(0.0, timeout=1.0)
-        self.pace = _new_task("rig-pacing")
+        self.pace = new_task("rig-pacing")
         self.pace.ai_channels.add_ai_voltage_chan(cfg.channels.pacing.physical_channel,
                                                   min_val=-10.0, max_val=10.0)
         self.pace.timing.cfg_samp_clk_timing(cfg.rates.control_hz,
@@ -141,7 +141,7 @@ class NiReader(Reader):
         buf = int(cfg.acquisition.buffer_s * rate)
         self.fb = shared_memory.SharedMemory(name=spec["feedback"]) if spec.get("feedback") \
             else None
-        self.ai = _new_task("rig-bridges")
+        self.ai = new_task("rig-bridges")
         loadcell.add_ni_channel(self.ai, ch.load_cell)
         self.n_ai = 1
         if ch.strain_gauge.enabled:
@@ -154,7 +154,7 @@ class NiReader(Reader):
         self.ci: list[Any] = []
         self.ci_readers: list[Any] = []
         for name, enc in ch.encoders.items():
-            task = _new_task(f"rig-encoder-{name}")
+            task = new_task(f"rig-encoder-{name}")
             encoders.add_ni_channel(task, enc, name)
             task.timing.cfg_samp_clk_timing(rate, source=ch.ai_sample_clock,
                                             sample_mode=AcquisitionType.CONTINUOUS,
@@ -212,7 +212,7 @@ class NiReader(Reader):
         so a new task on the same AO channel writes 0 V (and, on cards that have the setting,
         asks for 0 V whenever no generation runs: ``ao_idle_output_behavior``)."""
         out = self.cfg.channels.drive_output
-        task = _new_task("rig-safe-stop")
+        task = new_task("rig-safe-stop")
         try:
             chan = task.ao_channels.add_ao_voltage_chan(out.physical_channel,
                                                         min_val=out.min_volts,
