@@ -58,6 +58,7 @@ def main() -> None:
         truth = ActionModel(effects=truth_effects)
         top1 = exact = alarms = covered = checked = 0
         times = []
+        per_param: dict[str, list[float]] = {}  # z = (value - truth) / sigma per seed
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             with tempfile.TemporaryDirectory() as tmp:
                 run = Path(tmp) / "run.h5"
@@ -83,6 +84,7 @@ def main() -> None:
                     s = final.sigma.get(key, float("nan"))
                     checked += 1
                     covered += abs(final.values[key] - v) <= 1.96 * s
+                    per_param.setdefault(key, []).append((final.values[key] - v) / s)
             print(f"  seed {seed}: chose {names or 'nothing'} in {times[-1]:.1f} s",
                   flush=True)
         k = args.seeds
@@ -91,6 +93,11 @@ def main() -> None:
         alarm = f"{alarms / k:.2f}" if not hidden else "-"
         print(f"{case:<46}{top:>8}{exact / k:>8.2f}{alarm:>8}{cover:>12}"
               f"{statistics.mean(times):>8.1f}", flush=True)
+        for key, zs in per_param.items():  # which parameter's interval is too narrow
+            inside = sum(abs(z) <= 1.96 for z in zs)
+            rms = statistics.fmean(z * z for z in zs) ** 0.5
+            print(f"    {key:<40} covered {inside}/{len(zs)}, z mean "
+                  f"{statistics.fmean(zs):+.2f}, z rms {rms:.2f} (1 if honest)", flush=True)
 
 
 if __name__ == "__main__":
