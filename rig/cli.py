@@ -746,6 +746,7 @@ def compare_cmd(
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --report")
                      ] = False,
+    as_json: _JsonOpt = False,
 ) -> None:
     """Drive each model with the run's measured input and tabulate its errors."""
     from rig.analysis import compare as cp
@@ -760,10 +761,15 @@ def compare_cmd(
                                 channels=channel, report_path=report)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
-    for comp in comps:
-        console.print(cp.table(comp), markup=False, highlight=False, soft_wrap=True)
-    if report is not None:
-        console.print(f"wrote {report}", markup=False, highlight=False)
+    if as_json:
+        _emit_json({"schema": "rig.compare/1", "run": str(run),
+                    "report": str(report) if report is not None else None,
+                    "trials": [c.as_dict() for c in comps]})
+    else:
+        for comp in comps:
+            console.print(cp.table(comp), markup=False, highlight=False, soft_wrap=True)
+        if report is not None:
+            console.print(f"wrote {report}", markup=False, highlight=False)
     if any(not m.ok for c in comps for m in c.models):
         raise typer.Exit(code=1)
 
@@ -796,6 +802,7 @@ def diagnose_cmd(
         help="Dask scheduler address (default: $RIG_SCHEDULER, else local processes)")] = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing --write / --report")
                      ] = False,
+    as_json: _JsonOpt = False,
 ) -> None:
     """Where the model fails, and which library effect removes the residual."""
     from rig.services import diagnose as svc
@@ -813,6 +820,15 @@ def diagnose_cmd(
                                 progress=_analysis_progress(bar, task))
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
+    if as_json:
+        wrote = write is not None and diag.best is not None
+        _emit_json({"schema": "rig.diagnose/1", "run": str(run),
+                    "write": str(write) if wrote else None,
+                    "report": str(report) if report is not None else None,
+                    "diagnosis": diag.as_dict()})
+        if write is not None and diag.best is None:
+            raise typer.Exit(code=1)
+        return
     for line in diag.report_lines():
         console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)

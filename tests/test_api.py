@@ -118,7 +118,8 @@ def _validated(output: str, schema_id: str) -> dict:
 def test_json_schemas_in_the_docs_are_valid_schemas() -> None:
     jsonschema = pytest.importorskip("jsonschema")
     schemas = _schemas()
-    assert set(schemas) == {"rig.info/1", "rig.simulate/1", "rig.effects/1", "rig.fit/1"}
+    assert set(schemas) == {"rig.info/1", "rig.simulate/1", "rig.effects/1", "rig.fit/1",
+                            "rig.compare/1", "rig.diagnose/1"}
     for s in schemas.values():
         jsonschema.Draft202012Validator.check_schema(s)
     with pytest.raises(jsonschema.ValidationError):  # the schemas do reject a wrong document
@@ -225,3 +226,31 @@ def test_shell_completion_of_commands_options_and_effect_names(words, cword, exp
     res = subprocess.run([str(Path(sys.executable).with_name("rig"))], env=env,
                          capture_output=True, text=True, timeout=120)
     assert res.stdout.split() == expected, res.stderr
+
+
+def test_compare_and_diagnose_json_validate_and_say_what_the_text_says(tmp_path) -> None:
+    from rig import profiles
+    from rig.analysis import synth
+    from rig.model.action import ActionModel
+
+    truth = ActionModel(effects=[{"compliant_string": {"stiffness": 3.0e4}}])
+    data = tmp_path / "d.h5"
+    synth.synth(truth, [profiles.load(FORTE), profiles.load(FORTE)], data, seed=4,
+                duration=0.1)
+    r = runner.invoke(app, ["compare", str(data), "--trial", "0", "--trial", "1", "--json"])
+    assert r.exit_code == 0, r.output
+    doc = _validated(r.stdout, "rig.compare/1")
+    assert len(doc["trials"]) == 2 and doc["trials"][1]["trial"].endswith("#1")
+    base = doc["trials"][0]["models"][0]
+    assert base["ok"] and base["errors"]["hammer_angle"]["units"] == "rad"
+    r = runner.invoke(app, ["diagnose", str(data), "--candidate", "compliant_string",
+                            "--candidate", "felt_hysteresis", "--jobs", "1",
+                            "--duration", "0.1", "--json"])
+    assert r.exit_code == 0, r.output
+    d = _validated(r.stdout, "rig.diagnose/1")["diagnosis"]
+    assert d["chosen"] == ["compliant_string"] and d["final"]["significant"]
+    k = d["final"]["values"]["compliant_string.stiffness"]
+    s = d["final"]["sigma"]["compliant_string.stiffness"]
+    assert abs(k - 3.0e4) < 4 * s and d["final"]["units"]["compliant_string.stiffness"] == "N/m"
+    assert {c["name"] for c in d["candidates"]} == {"compliant_string", "felt_hysteresis"}
+    assert d["verdict"].startswith("missing effect: compliant_string")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -107,6 +108,22 @@ class Comparison:
     strike_speed: float
     phases: list[tuple[str, float, float]]
     models: list[ModelComparison] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The comparison's figures as plain data (``rig compare --json``, docs/json.md)."""
+        return {
+            "trial": self.measurement.label, "input": self.input, "channels": list(self.channels),
+            "ranges": dict(self.ranges), "noise": dict(self.noise),
+            "events": dict(self.events), "event_source": dict(self.event_source),
+            "strike_speed": self.strike_speed,
+            "phases": [{"name": p, "start_s": a, "end_s": b} for p, a, b in self.phases],
+            "models": [{
+                "label": m.label, "ok": m.ok, "message": m.result.message,
+                "errors": {c: {"rms": e.rms, "nrms": e.nrms, "max": e.max, "units": e.units,
+                               "modelled": e.modelled} for c, e in m.errors.items()},
+                "phase_errors": {c: dict(v) for c, v in m.phase_errors.items()},
+                "events": dict(m.events), "event_errors": dict(m.event_errors),
+                "strike_speed": m.strike_speed} for m in self.models]}
 
     def phase_mask(self, name: str) -> np.ndarray:
         for p, a, b in self.phases:

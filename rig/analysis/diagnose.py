@@ -103,6 +103,16 @@ class Candidate:
     test_noise: dict[str, float] = field(default_factory=dict)  # held-out MS / noise^2
     test_resid: np.ndarray | None = field(default=None, repr=False)
 
+    def as_dict(self) -> dict[str, Any]:
+        """Plain data (``rig diagnose --json``, docs/json.md)."""
+        return {"name": self.name, "effects": list(self.effects or (self.name,)),
+                "values": dict(self.values), "sigma": dict(self.sigma),
+                "units": dict(self.units), "removal": self.removal,
+                "channel_removal": dict(self.channel_removal), "train_gain": self.train_gain,
+                "p_value": self.p_value, "significant": self.significant,
+                "why_not": self.why_not, "note": self.note, "error": self.error,
+                "correlations": [{"a": a, "b": b, "r": r} for (a, b), r in self.corr.items()]}
+
     def own(self) -> dict[str, float]:
         """This candidate's own fitted values (``param: value``)."""
         pre = self.name + "."
@@ -169,6 +179,18 @@ class Diagnosis:
     chosen: list[Candidate] = field(default_factory=list)  # accepted, in order (joint)
     single: bool = False
     refs: dict[str, str] = field(default_factory=dict)     # user effect name -> file.py:Class
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
+        fit, each accepted step, the first round's ranking, the verdict."""
+        f = self.final
+        return {"chosen": self.chosen_names, "final": f.as_dict() if f is not None else None,
+                "steps": [c.as_dict() for c in self.chosen],
+                "candidates": [c.as_dict() for c in self.candidates],
+                "base_error": dict(self.base_error), "total_removal": self.total_removal(),
+                "split": self.split, "single": self.single, "notes": list(self.notes),
+                "verdict": self.verdict(), "wall_s": self.wall_s,
+                "base_comparison": self.comparison.as_dict()}
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
         """Share of the held-out error the candidate removes on these channels together."""
