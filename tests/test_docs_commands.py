@@ -97,8 +97,9 @@ def test_every_documented_command_runs(scratch: Path, doc: str) -> None:
         assert res.returncode == 0, f"{doc}: `{cmd}` exited {res.returncode}:\n" \
                                     f"{res.stdout[-2000:]}\n{res.stderr[-2000:]}"
         ran += 1
-    for code in python_blocks(text):
-        res = subprocess.run([sys.executable, "-c", code], cwd=scratch, capture_output=True,
+    for code in python_blocks(text):  # -P: the scratch folder's rig/data (a command names
+        # it) must not shadow the installed package as a namespace package
+        res = subprocess.run([sys.executable, "-P", "-c", code], cwd=scratch, capture_output=True,
                              text=True, timeout=900)
         assert res.returncode == 0, f"{doc}: Python block failed:\n{code}\n{res.stderr[-3000:]}"
         ran += 1
