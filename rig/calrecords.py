@@ -32,6 +32,7 @@ class CalRecord:
     raw_units: str
     units: str
     source: str = "data sheet"
+    record_file: str = ""  # the stored record (rig.calibration.records) it came from, if any
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

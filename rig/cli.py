@@ -367,7 +367,7 @@ def list_effects(as_json: _JsonOpt = False) -> None:
                           f"{p.bounds[1]:g}]{fit}: {p.description}")
 
 
-# ---- rig run (issue 4): the torque loop and acquisition; the work is in rig.services.run ----
+# ---- rig run: the torque loop and acquisition; the work is in rig.services.run ----
 def _plain(text: str) -> None:
     console.print(text, markup=False, highlight=False, soft_wrap=True)
 
@@ -383,9 +383,9 @@ def run_profile(
                                              "default <data_folder>/<time>-<profile>.h5")] = None,
     lockstep: Annotated[bool, typer.Option(
         help="simulated rig only: step as fast as possible instead of in real time")] = False,
-    learn: Annotated[int, typer.Option(  # issue 18
+    learn: Annotated[int, typer.Option(
         "--learn", help="learn the feedforward over N trials (ILC) and save it as a record")] = 0,
-    learned: Annotated[bool, typer.Option(  # issue 18
+    learned: Annotated[bool, typer.Option(
         "--learned/--no-learned", help="use the learned-feedforward record of this profile "
         "if there is one")] = True,
     force: Annotated[bool, typer.Option(
@@ -401,7 +401,7 @@ def run_profile(
         cfg, which = rig_config.resolve(rig)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
-    # ---- issue 18: --learn N, and the learned-feedforward record (rig.control.records) ----
+    # ---- --learn N, and the learned-feedforward record (rig.control.records) ----
     record = None
     if learn:
         if trials != 1:
@@ -426,7 +426,7 @@ def run_profile(
         rec, rpath = record
         _plain(f"using the learned feedforward {rpath} ({len(rec['trials'])} trials, max error "
                f"{rec['final_error']['max_pct']:.2f} % of the peak; --no-learned to ignore it)")
-    # ---- end issue 18 ----
+    # ---- end of the learned feedforward ----
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
@@ -470,7 +470,7 @@ def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | No
     return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
 
 
-# ---- rig calibrate / rig check (issue 5): the work is in rig.services.calibrate ----
+# ---- rig calibrate / rig check: the work is in rig.services.calibrate ----
 calibrate_app = typer.Typer(no_args_is_help=True,
                             help="Calibrate a sensor or the motor; writes a calibration record.")
 check_app = typer.Typer(no_args_is_help=True, help="Check sensors on the rig.")
@@ -651,7 +651,7 @@ def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
 # ---- end of rig calibrate / rig check ----
 
 
-# ---- rig compare / diagnose / fit / synth (issue 6): the work is in rig.analysis ----
+# ---- rig compare / diagnose / fit / synth: the work is in rig.analysis ----
 from collections.abc import Callable  # noqa: E402
 
 

@@ -2,7 +2,7 @@
 
 force_n = (ratio_v_per_v - offset) / sensitivity, with the sensitivity in
 (V/V) per N. The nominal sensitivity is the rated output over full scale
-(Sensotec Model 13: 2 mV/V at 111 N); calibration (issue 5) replaces it.
+(Sensotec Model 13: 2 mV/V at 111 N); calibration replaces it.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 NI's quarter-bridge-I conversion, with Vr the change of bridge ratio from the
 unstrained value:  strain = -4 Vr / (GF (1 + 2 Vr)) * (1 + RL / Rg).
 ``sensitivity`` below is the gage factor in use and ``offset`` the unstrained
-ratio (V/V); calibration (issue 5) replaces the nominal values.
+ratio (V/V); calibration replaces the nominal values.
 """
 
 from __future__ import annotations

@@ -138,7 +138,7 @@ def test_record_file_hash_and_newest_valid(tmp_path: Path) -> None:
     data = json.loads(p2.read_text())
     data["fit"]["sensitivity"] *= 1.01
     p2.write_text(json.dumps(data))
-    with pytest.warns(records.CalibrationAgeWarning, match="content_hash does not match"):
+    with pytest.warns(records.InvalidRecordWarning, match="content_hash does not match"):
         found = records.newest_valid(tmp_path / "calibrations", "load_cell", cfg)
     assert found is not None and found[1] == p1
 

@@ -450,3 +450,15 @@ def test_an_integrators_edit_invalidates_the_stiff_integrators_cache(tmp_path):
     rm._drop_stale_caches(tmp_path)
     left = {p.name for p in cache.iterdir()}
     assert left == {files["stiff_fresh"][0], files["explicit_ok"][0]}
+
+
+def test_an_integrator_block_without_a_name_keeps_the_default_integrator(tmp_path):
+    from rig.model.action import ActionModel
+
+    m = tmp_path / "m.yaml"
+    m.write_text("integrator: {rtol: 1.0e-5}\n")
+    model = ActionModel.from_yaml(m)
+    assert model.integrator.name == ActionModel().integrator.name == "rosenbrock"
+    assert model.integrator.rtol == 1.0e-5
+    m.write_text("integrator: {name: dopri54, rtol: 1.0e-5}\n")
+    assert ActionModel.from_yaml(m).integrator.name == "dopri54"

@@ -1,4 +1,4 @@
-"""Model against measurement: compare, diagnose, fit, synthesize, report (issue 6).
+"""Model against measurement: compare, diagnose, fit, synthesize, report.
 
     measurement.py  a measured (or synthetic) trial, its input to a model, noise
     compare.py      simulate models against a trial: aligned errors per channel,

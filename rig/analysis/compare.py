@@ -38,7 +38,6 @@ PHASES: tuple[tuple[str, str | None, str | None], ...] = (
     ("check", "check", "key_release"),
     ("release", "key_release", None),
 )
-PHASE_NAMES = tuple(p[0] for p in PHASES)
 EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
     "key_starts": ("key_dip", "key_angle", "whippen_angle"),
     "toe_meets_button": ("hammer_angle", "whippen_angle"),
@@ -124,12 +123,6 @@ class Comparison:
                 "phase_errors": {c: dict(v) for c, v in m.phase_errors.items()},
                 "events": dict(m.events), "event_errors": dict(m.event_errors),
                 "strike_speed": m.strike_speed} for m in self.models]}
-
-    def phase_mask(self, name: str) -> np.ndarray:
-        for p, a, b in self.phases:
-            if p == name:
-                return (self.time >= a) & (self.time < b)
-        return np.zeros(self.time.shape, bool)
 
 
 def _rest_value(time: np.ndarray, x: np.ndarray, rest: np.ndarray) -> float:

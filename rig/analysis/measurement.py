@@ -111,14 +111,6 @@ def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurem
     return out
 
 
-def from_result(result: SimResult, label: str = "simulated") -> Measurement:
-    """A simulation's channels as a measurement (e.g. to compare two models)."""
-    ch = {k: v for k, v in result.channels.items() if np.ndim(v) == 1}
-    return Measurement(result.time.copy(), ch, {k: result.units.get(k, "") for k in ch},
-                       {k: v for k, v in result.events.items() if math.isfinite(v)},
-                       label=label)
-
-
 def at_rate(model: ActionModel, rate: float) -> ActionModel:
     """The same model (parameters, effects, integrator) sampling its channels at ``rate``."""
     if abs(model.output_rate - rate) <= 1e-9 * rate:
@@ -290,4 +282,3 @@ def noise_sigma(x: np.ndarray) -> float:
         if np.mean(np.abs(k - np.round(k)) < 1e-3) > 0.95:  # values on a grid: quantized
             sigma = max(sigma, q / math.sqrt(12.0))
     return sigma
-

@@ -1,4 +1,4 @@
-"""Calibration of the rig's sensors and of the motor's force map (issue 5).
+"""Calibration of the rig's sensors and of the motor's force map.
 
     settings    CalibrationSettings: records folder, maximum age, reference masses, shunt...
     records     one JSON file per calibration (content-hashed); newest valid per sensor

@@ -16,8 +16,7 @@ Runtime: ``MotorCompensation.demand(desired_n)`` inverts the map, and the loop
 asks for the profile ``lag_s`` ahead: ``comp.demand_at(profile, t)``
 (= ``comp.demand(profile.at(t + comp.lag_s))``). ``compensation_for(cfg)``
 gives the newest motor record's compensation (identity map, lag =
-``loop.advance_s`` when there is none); ``MapController`` is the same thing
-as a controller of the run loop (the loop then advances by ``lag_s``).
+``loop.advance_s`` when there is none).
 """
 
 from __future__ import annotations
@@ -81,24 +80,6 @@ class MotorCompensation:
         """What the torque loop writes at trial time t (N, before the safety limits)."""
         tt = t + self.lag_s
         return float(self.demand(float(profile.at(tt)))) if tt >= 0 else 0.0
-
-
-class MapController:
-    """Run-loop controller applying the inverse map to the loop's (advanced) feedforward.
-
-    Use with ``loop.advance_s = comp.lag_s``: the loop's feedforward is then
-    the profile lag_s ahead, and this returns the demand that produces it."""
-
-    name = "motor_map"
-
-    def __init__(self, comp: MotorCompensation) -> None:
-        self.comp = comp
-
-    def reset(self) -> None:
-        pass
-
-    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
-        return float(self.comp.demand(feedforward_n))
 
 
 def sequence(cfg: RigConfig, s: MotorCal) -> tuple[np.ndarray, list[dict[str, Any]]]:

@@ -43,6 +43,10 @@ class CalibrationAgeWarning(UserWarning):
     """A record in use is older than calibration.max_age_days."""
 
 
+class InvalidRecordWarning(UserWarning):
+    """An unreadable or altered record (its content hash does not match) was skipped."""
+
+
 def json_ready(obj: Any) -> Any:
     """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
     if isinstance(obj, dict):
@@ -137,7 +141,7 @@ def newest_valid(folder: Path, sensor: str, cfg: RigConfig) -> tuple[dict[str, A
         try:
             rec = read(path)
         except ValueError as exc:
-            warnings.warn(f"skipping {exc}", CalibrationAgeWarning, stacklevel=2)
+            warnings.warn(f"skipping {exc}", InvalidRecordWarning, stacklevel=2)
             continue
         if rec["sensor"] != sensor or rec["rig"].get("backend") != want["backend"]:
             continue
@@ -163,7 +167,7 @@ def to_calrecord(rec: dict[str, Any], path: Path) -> CalRecord:
     fit = rec["fit"]
     units = rec["units"]
     return CalRecord(rec["sensor"], False, float(fit["sensitivity"]), float(fit["offset"]),
-                     units["raw"], units["calibrated"], _source(rec, path))
+                     units["raw"], units["calibrated"], _source(rec, path), str(path))
 
 
 def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str, CalRecord]:
@@ -213,14 +217,8 @@ def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str
 
 def embedded(cals: dict[str, CalRecord], cfg: RigConfig) -> list[dict[str, Any]]:
     """Full stored records behind ``cals`` (for a run file's metadata), by content hash."""
-    out = []
-    folder = records_folder(cfg)
-    for rec in cals.values():
-        if rec.nominal or not rec.source.startswith("calibration "):
-            continue
-        name = rec.source.split(" ", 2)[1]
-        out.append(read(folder / name))
-    return out
+    return [read(Path(rec.record_file)) for rec in cals.values()
+            if not rec.nominal and rec.record_file]
 
 
 def lookup(cfg: RigConfig) -> dict[str, CalRecord]:

@@ -12,9 +12,6 @@ from __future__ import annotations
 
 import getpass
 from pathlib import Path
-from typing import Any
-
-from pydantic import BaseModel, ValidationError
 
 from rig.config import (  # noqa: F401 - the calibration section's schema, re-exported
     SENSORS,
@@ -24,23 +21,12 @@ from rig.config import (  # noqa: F401 - the calibration section's schema, re-ex
     RigConfig,
     StrainCal,
 )
-from rig.errors import InputError
 
 
 def settings_for(cfg: RigConfig) -> CalibrationSettings:
-    """The rig's calibration settings (its ``calibration:`` section, else the defaults)."""
-    raw: Any = getattr(cfg, "calibration", None)
-    if raw is None:
-        return CalibrationSettings()
-    if isinstance(raw, CalibrationSettings):
-        return raw
-    data = raw.model_dump() if isinstance(raw, BaseModel) else raw
-    try:
-        return CalibrationSettings.model_validate(data)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        where = ".".join(str(p) for p in e["loc"])
-        raise InputError(f"calibration.{where}: {e['msg']}") from None
+    """The rig's calibration settings (its ``calibration:`` section, validated with the
+    rest of the configuration; the defaults when the file has none)."""
+    return cfg.calibration
 
 
 def records_folder(cfg: RigConfig, override: Path | None = None) -> Path:

@@ -1,4 +1,4 @@
-"""Load-cell feedback in the 500 Hz loop: a PI controller on the force error (issue 18).
+"""Load-cell feedback in the 500 Hz loop: a PI controller on the force error.
 
 Switched on in the rig config: ``loop.controller: rig.control.feedback:LoadCellPI``
 (the loop's Controller hook, rig.services.run). Each cycle

@@ -1,4 +1,4 @@
-"""Iterative learning control of the key force across trials (issue 18).
+"""Iterative learning control of the key force across trials.
 
 One trial's feedforward is a table ``u`` (N) on the loop's 500 Hz trial-time grid
 (``t_j = j / control_hz`` from the profile's start). After a trial with measured

@@ -287,15 +287,16 @@ class ActionModel:
         if not isinstance(data.get("effects") or [], list):
             raise InputError(f"{path}: effects: expected a list")
         eff.extend(e for e in effects if e not in eff)
-        integ = None
+        model = cls(params, eff, None, base_dir=base)
         ispec = data.get("integrator")
         num = params.tree["numerics"]
         if integrator is not None or ispec is not None:
             spec = dict(ispec) if isinstance(ispec, Mapping) else {}
-            name = integrator or str(spec.get("name", "dopri54"))
-            integ = by_name(name, rtol=float(spec.get("rtol", num["rtol"])),
-                            max_step=float(spec.get("max_step", num["max_step"])))
-        return cls(params, eff, integ, base_dir=base)
+            # a block without a name keeps the model's default integrator (its tolerances set)
+            name = integrator or str(spec.get("name") or model.integrator.name)
+            model.integrator = by_name(name, rtol=float(spec.get("rtol", num["rtol"])),
+                                       max_step=float(spec.get("max_step", num["max_step"])))
+        return model
 
     # -- information -------------------------------------------------------------
     @property

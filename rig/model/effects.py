@@ -448,16 +448,6 @@ BUILTIN: dict[str, type[Effect]] = {cls.name: cls for cls in (
     FeltHysteresis, CompliantString)}
 
 
-
-
-def register(cls: type[Effect]) -> type[Effect]:
-    """Add an effect class to the library (usable by name in model YAML)."""
-    if not cls.name:
-        raise InputError(f"{cls.__qualname__}: an effect needs a non-empty name")
-    BUILTIN[cls.name] = cls
-    return cls
-
-
 def _one_line(text: str) -> str:
     return " ".join(text.split())
 

@@ -1,4 +1,4 @@
-"""`rig run PROFILE --learn N`: learn the feedforward across N trials (issue 18).
+"""`rig run PROFILE --learn N`: learn the feedforward across N trials.
 
     report = learn(Path("profiles/forte.yaml"), cfg, 5, on_line=print)
 

@@ -301,7 +301,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     (its traceback goes to ``on_line`` and the file's ``abort_traceback`` metadata). A stop
     before the acquisition has started raises ``RunStopped`` (no run file is left).
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
-    feedforward instead of the advance or the motor compensation (issue 18)."""
+    feedforward instead of the advance or the motor compensation."""
     say = on_line or (lambda s: None)
     if trials < 1:
         raise InputError(f"trials: expected at least 1, got {trials}")
@@ -314,12 +314,12 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = demand_source(cfg, full_records)
-    # ---- issue 18 hook: a learned feedforward table replaces the compensation ----
+    # ---- a learned feedforward table replaces the compensation ----
     if learned is not None:
         from rig.control import records as learned_records
 
         feedforward, compensation = learned_records.demand_source(learned)
-    # ---- end issue 18 hook ----
+    # ---- end of the learned feedforward ----
     stop_state: dict[str, Any] = {"reason": None, "in_loop": False}
     old_handlers = _install_stop_handlers(stop_state)
     try:
@@ -371,7 +371,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
-    if learned is not None:  # issue 18: the record in use, embedded whole
+    if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
     cpu = loop_cpu(cfg, say)

@@ -171,10 +171,6 @@ class SimDaq(Daq):
         assert self.link is not None
         return self.link.feedback()
 
-    @property
-    def samples_written(self) -> int:
-        return self.fifo.written
-
     def close(self) -> None:
         """Zero the output, let the plant finish the periods the loop ran, release all."""
         if self._closed:

@@ -3,7 +3,7 @@
 Each model turns a true physical value into what the card reads (V/V or
 counts) using its *true* parameters, which differ from the data-sheet
 (nominal) ones by a seeded spread; ``truth()`` returns them so calibration
-(issue 5) can check that it recovers them, and `rig synth` can reuse the models.
+can check that it recovers them, and `rig synth` can reuse the models.
 
     sensors = SensorSet.from_config(cfg, seed=4)
     ratio = sensors.load_cell.measure(force_n)          # V/V, filtered, noisy
