@@ -81,15 +81,7 @@ def plot(path: str | Path, out: str | Path, *, trial: int = 0,
         raise InputError(f"out: {out} exists (use --force to replace it)")
     run = runfile.read(path)
     tr = _trial(run, trial)
-    names = channels_of(tr, channels)
-    t = np.asarray(tr.time, float)
-    lo, hi = window if window is not None else (-math.inf, math.inf)
-    mask = (t >= lo) & (t <= hi)
-    if mask.sum() < 2:
-        raise InputError(f"window: no samples of trial {trial} in {lo:g}:{hi:g} s (the trial "
-                         f"spans {t[0]:g} to {t[-1]:g} s)")
-    tw = t[mask]
-    events = {k: v for k, v in tr.events.items() if math.isfinite(v)}
+    names, mask, tw, events = _selection(tr, channels, window, f"of trial {trial} ")
     title = (f"{Path(path).name} trial {trial}: {run.kind} run, status "
              f"{tr.attrs.get('status', run.status)}")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -103,15 +95,23 @@ def plot(path: str | Path, out: str | Path, *, trial: int = 0,
 def figure(tr: runfile.Trial, channels: Sequence[str] | None = None,
            window: tuple[float, float] | None = None, title: str = "") -> Any:
     """The quick look of a trial as a Plotly figure (channels stacked, events marked)."""
+    names, mask, tw, events = _selection(tr, channels, window)
+    return _figure(tr, names, mask, tw, events, title)
+
+
+def _selection(tr: runfile.Trial, channels: Sequence[str] | None,
+               window: tuple[float, float] | None, which: str = ""
+               ) -> tuple[list[str], np.ndarray, np.ndarray, dict[str, float]]:
+    """The channels to plot, the window's mask and times, the events that happened."""
     names = channels_of(tr, channels)
     t = np.asarray(tr.time, float)
     lo, hi = window if window is not None else (-math.inf, math.inf)
     mask = (t >= lo) & (t <= hi)
     if mask.sum() < 2:
-        raise InputError(f"window: no samples in {lo:g}:{hi:g} s (the trial spans {t[0]:g} "
-                         f"to {t[-1]:g} s)")
+        raise InputError(f"window: no samples {which}in {lo:g}:{hi:g} s (the trial spans "
+                         f"{t[0]:g} to {t[-1]:g} s)")
     events = {k: v for k, v in tr.events.items() if math.isfinite(v)}
-    return _figure(tr, names, mask, t[mask], events, title)
+    return names, mask, t[mask], events
 
 
 def _figure(tr: runfile.Trial, names: list[str], mask: np.ndarray, tw: np.ndarray,
