@@ -107,7 +107,7 @@ def _column_scale(grp: h5py.Group, name: str, columns: Iterable[Any]) -> h5py.Da
         scale.attrs["long_name"] = f"column label of {name}"
         scale.make_scale(dim)
         return scale
-    raise InputError(f"{grp.name}/{name}: no free name for its column scale")
+    raise RuntimeError(f"{grp.name}/{name}: no free name for its column scale")
 
 
 def _attach_scales(grp: h5py.Group, name: str, ds: h5py.Dataset,
