@@ -30,12 +30,26 @@ import nidaqmx.stream_readers
 import nidaqmx.stream_writers
 import numpy as np
 from nidaqmx.constants import AcquisitionType, AOIdleOutputBehavior, OverwriteMode
+from nidaqmx.error_codes import DAQmxErrors
 
 from rig import encoders, loadcell, strain
 from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 
-OVERFLOW_CODES = {-200279, -200222, -200141, -201314, -200010, -200361}
+# the DAQmx errors that mean samples were lost (buffer or FIFO overflow, counter overrun)
+OVERFLOW_ERRORS = frozenset({
+    DAQmxErrors.SAMPLES_NO_LONGER_AVAILABLE,
+    DAQmxErrors.ACQ_STOPPED_TO_PREVENT_INPUT_BUFFER_OVERWRITE,
+    DAQmxErrors.COUNTER_OVERFLOW, DAQmxErrors.CI_OVERRUN, DAQmxErrors.INPUT_FIFO_OVERFLOW,
+    DAQmxErrors.INPUT_FIFO_OVERFLOW_2})
+
+
+def _error_name(code: int) -> str:
+    """DAQmx's name of an error code (its number when nidaqmx does not know it)."""
+    try:
+        return f"{DAQmxErrors(code).name} ({code})"
+    except ValueError:
+        return str(code)
 
 
 def new_task(name: str) -> Any:
@@ -192,10 +206,11 @@ class NiReader(Reader):
                 r.read_many_sample_double(row, number_of_samples_per_channel=n, timeout=1.0)
                 counts[j] = row
         except nidaqmx.errors.DaqError as exc:
-            if exc.error_code in OVERFLOW_CODES:
-                raise DaqFault(f"acquisition buffer overflow (DAQmx {exc.error_code}): "
-                               f"samples were lost") from None
-            raise DaqFault(f"acquisition read failed (DAQmx {exc.error_code}): {exc}") from None
+            if exc.error_code in OVERFLOW_ERRORS:
+                raise DaqFault(f"acquisition buffer overflow (DAQmx "
+                               f"{_error_name(exc.error_code)}): samples were lost") from None
+            raise DaqFault(f"acquisition read failed (DAQmx {_error_name(exc.error_code)}): "
+                           f"{exc}") from None
         sample = self.count + np.arange(n, dtype=float)
         self.count += n
         return np.column_stack([sample, ai.T, counts.T])
