@@ -166,7 +166,10 @@ class TrialWriter:
             ds[n0:] = arr
 
     def write_events(self, events: Mapping[str, float], descriptions: Mapping[str, str]
-                     | None = None) -> None:
+                     | None = None, *, source: str | None = None,
+                     methods: Mapping[str, str] | None = None) -> None:
+        """Scalar event times (s); ``source`` (e.g. found in the measured channels) and each
+        event's ``method`` go to its attributes."""
         grp = self.group.require_group("events")
         for name, value in events.items():
             if name in grp:
@@ -175,6 +178,11 @@ class TrialWriter:
             ds.attrs["units"] = "s"
             if descriptions and name in descriptions:
                 ds.attrs["description"] = descriptions[name]
+                ds.attrs["long_name"] = descriptions[name]
+            if source:
+                ds.attrs["source"] = source
+            if methods and name in methods:
+                ds.attrs["method"] = methods[name]
 
     def set_attrs(self, **attrs: Any) -> None:
         for key, value in attrs.items():
@@ -277,6 +285,7 @@ class Trial:
     attrs: dict[str, Any] = field(default_factory=dict)
 
     descriptions: dict[str, str] = field(default_factory=dict)
+    event_sources: dict[str, str] = field(default_factory=dict)  # event -> its "source" attr
 
     @property
     def time(self) -> np.ndarray:
@@ -409,8 +418,10 @@ def read(path: str | Path) -> Run:
             cmd, cunits, _, cdocs = _read_section(g.get("commands"))
             units.update({f"commands/{k}": v for k, v in cunits.items()})
             docs.update({f"commands/{k}": v for k, v in cdocs.items()})
-            ev = current_event_names({k: float(v[()]) for k, v in g.get("events", {}).items()})
-            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs), docs))
+            evg = g.get("events", {})
+            ev = current_event_names({k: float(v[()]) for k, v in evg.items()})
+            src = {k: str(v.attrs["source"]) for k, v in evg.items() if "source" in v.attrs}
+            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs), docs, src))
     return Run(p, attrs, meta, trials)
 
 

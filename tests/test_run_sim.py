@@ -370,3 +370,34 @@ def test_xarray_opens_a_measured_run_with_time_as_the_dimension(forte_run) -> No
         assert set(cmd.dims) == {"time"}
         assert np.array_equal(cmd["volts"].values, run.trials[0].commands["volts"])
         assert all(v.attrs.get("long_name") for v in cmd.variables.values())
+
+
+def test_a_measured_run_stores_the_events_found_in_it(forte_run) -> None:
+    """The run file holds the events found in its channels (rig.analysis.events), each with
+    its source and method, and they agree with the model's own events when it is driven
+    offline by the measured force: the strike to 1 ms (the simulated rig's shank is
+    flexible: its ringing moves the hammer's encoder)."""
+    import h5py
+
+    from rig.analysis import events as found_events
+
+    _, run = forte_run
+    tr = run.trials[0]
+    assert {"key_starts", "strike", "key_bottom"} <= set(tr.events)
+    assert set(tr.event_sources.values()) == {found_events.SOURCE}
+    with h5py.File(run.path, "r") as f:
+        for name in tr.events:
+            a = f[f"trial_000/events/{name}"].attrs
+            assert a["units"] == "s" and a["method"] == found_events.METHODS[name]
+    assert tr.events["key_starts"] < tr.events["strike"]
+    t = tr.channels["time"]
+    keep = (t >= 0) & (t <= 0.3)
+    tk, force = t[keep], np.clip(tr.channels["force"][keep], 0, None)
+    prof = profiles.from_points(np.column_stack([tk - tk[0], force]).tolist(), name="measured")
+    sim = ActionModel(effects=["flexible_shank"]).simulate(prof, duration=float(tk[-1] - tk[0]))
+    model = {k: v + tk[0] for k, v in sim.events.items()}
+    assert tr.events["strike"] == pytest.approx(model["strike"], abs=1e-3)
+    # the key starts where its dip (from rest) crosses the model's threshold, to a count
+    dip = tr.channels["key_dip"] - np.median(tr.channels["key_dip"][t < 0])
+    at = np.interp(tr.events["key_starts"], t, dip)
+    assert abs(at) == pytest.approx(found_events.KEY_MOVE_THRESHOLD_M, abs=0.5e-6)

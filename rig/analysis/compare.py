@@ -227,11 +227,13 @@ def _strike_speed(time: np.ndarray, angle: np.ndarray, t_strike: float) -> float
 def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.ndarray],
                     ref: SimResult, ref_pred: dict[str, np.ndarray]
                     ) -> tuple[dict[str, float], dict[str, str]]:
-    """Event times of the trial: from the file, else the local shift against the reference."""
+    """Event times of the trial: a simulation's own from the file, else the local shift
+    against the reference (sub-sample), else the time found in the measured channels
+    (rig.analysis.events: to about a sample) if the file has it."""
     ev: dict[str, float] = {}
     src: dict[str, str] = {}
     for name in EVENT_ORDER:
-        if name in meas.events:
+        if name in meas.events and not meas.found(name):
             ev[name], src[name] = meas.events[name], "run file"
             continue
         t_model = ref.events.get(name, math.nan)
@@ -245,6 +247,8 @@ def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.
                 if math.isfinite(tau):
                     ev[name], src[name] = t_model + tau, f"aligned on {c}"
                     break
+        if not math.isfinite(ev[name]) and name in meas.events:
+            ev[name], src[name] = meas.events[name], "found in the run file"
     return ev, src
 
 

@@ -39,6 +39,14 @@ class Measurement:
     commands: dict[str, np.ndarray] = field(default_factory=dict)
     label: str = "measurement"
     metadata: dict[str, Any] = field(default_factory=dict)
+    # event -> where its time came from ("found in the measured channels ..."); events
+    # without an entry are the simulation's own (simulated files)
+    event_source: dict[str, str] = field(default_factory=dict)
+
+    def found(self, event: str) -> bool:
+        """Whether ``event`` was found in the measured channels (rig.analysis.events), not
+        given by a simulation."""
+        return event in self.event_source
 
     @property
     def rate(self) -> float:
@@ -107,7 +115,9 @@ def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurem
         out.append(Measurement(np.asarray(tr.channels["time"], float),
                                {k: np.asarray(v, float) for k, v in tr.channels.items()},
                                dict(tr.units), ev, dict(tr.commands),
-                               label=f"{Path(path).name}#{i}", metadata=dict(run.metadata)))
+                               label=f"{Path(path).name}#{i}", metadata=dict(run.metadata),
+                               event_source={k: v for k, v in tr.event_sources.items()
+                                             if k in ev}))
     return out
 
 

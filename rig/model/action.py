@@ -40,6 +40,7 @@ from rig.model.vocabulary import (  # noqa: E402,F401 - the vocabulary, re-expor
     COORDINATES,
     EVENT_DOCS,
     EVENT_ORDER,
+    KEY_MOVE_THRESHOLD_M,
 )
 from rig.params import Parameters, load_yaml_file
 
@@ -48,7 +49,6 @@ from rig.params import Parameters, load_yaml_file
 _REST_CACHE: dict[bytes, np.ndarray] = {}
 # balance-rail placements (offset m, rest state) by the equations before placement
 _RAIL_CACHE: dict[bytes, tuple[float, np.ndarray]] = {}
-KEY_MOVE_THRESHOLD_M = 2e-5
 # integrators the rest state settles with when the model uses them (others: dopri54)
 SETTLE_WITH_OWN_INTEGRATOR = ("rosenbrock", "dopri54")
 HEAD_STRIKE_POINT = "Phh3"

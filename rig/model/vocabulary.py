@@ -59,6 +59,9 @@ CHANNEL_DOCS.update({n.replace("_angle", "_angular_velocity"):
                      f"rate of change of {n} ({CHANNEL_DOCS[n].split(',')[0]})"
                      for n in ANGLE_CHANNELS if n in CHANNEL_DOCS})
 
+# the key has started to move when its top has travelled this far (m)
+KEY_MOVE_THRESHOLD_M = 2e-5
+
 # event name -> (contact id, direction), + = contact closes, - = opens
 EVENT_DOCS: dict[str, str] = {
     "key_starts": "key starts to move (key top travel exceeds the threshold)",

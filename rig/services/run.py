@@ -39,6 +39,7 @@ import numpy as np
 
 from rig import loadcell, motor_torque, pacing, profiles, runfile
 from rig.acquisition import COMMAND_DOCS, COMMAND_UNITS, run_acquisition
+from rig.analysis import events
 from rig.backends import open_daq
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
@@ -46,6 +47,7 @@ from rig.config import RigConfig
 from rig.daq import Daq
 from rig.drive import Drive, DriveError, DriveMonitor
 from rig.errors import InputError
+from rig.model.vocabulary import EVENT_DOCS
 
 
 class Controller(Protocol):
@@ -546,14 +548,36 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             _safe(drive.close)
         if sim_drive is not None:
             sim_drive.close()
-    final = runfile.read(path).status
+    read_back = runfile.read(path)
+    final = read_back.status
     # no repeatability figure over truncated trials: only a complete run gets one
     rep = repeatability(path) if trials > 1 and final == "complete" else {}
-    if rep:
+    found = found_events(read_back, say)
+    if rep or found:
         w = runfile.RunWriter.reopen(path)
-        w.add_metadata("repeatability", rep)
+        if rep:
+            w.add_metadata("repeatability", rep)
+        for k, ev in found.items():
+            w.trial(k).write_events(ev, EVENT_DOCS, source=events.SOURCE, methods=events.METHODS)
         w.close(final)
     return RunReport(path, final, last_tick + 1, stats, samples, rep)
+
+
+def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict[str, float]]:
+    """The events found in each trial's measured channels (rig.analysis.events), by trial
+    index; a trial whose search fails is left without events, with a warning."""
+    out: dict[int, dict[str, float]] = {}
+    for k, tr in enumerate(run.trials):
+        if "time" not in tr.channels:
+            continue
+        try:
+            ev = events.find(tr.channels["time"], tr.channels)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            say(f"warning: trial {k}: its events were not found ({exc})")
+            continue
+        if ev:
+            out[k] = ev
+    return out
 
 
 def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
