@@ -87,6 +87,9 @@ def main() -> None:
                     per_param.setdefault(key, []).append((final.values[key] - v) / s)
             print(f"  seed {seed}: chose {names or 'nothing'} in {times[-1]:.1f} s",
                   flush=True)
+            for note in diag.notes:
+                if note.startswith("valley"):
+                    print(f"    {note}", flush=True)
         k = args.seeds
         cover = f"{covered}/{checked}" if checked else "-"
         top = f"{top1 / k:.2f}" if hidden else "-"

@@ -554,6 +554,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             ex.close()
     if chosen:
         _add_input_noise(chosen[-1], base, by_name, train)
+        notes += _valleys(chosen[-1], base, by_name, train, test, final_nfev, alpha)
     if first:
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
@@ -632,6 +633,113 @@ def _add_input_noise(final: Candidate, base: ActionModel,
     final.sigma = sigma
     final.corr = {(a, b): float(new[i, j]) for i, a in enumerate(labels)
                   for j, b in enumerate(labels) if i < j}
+
+
+VALLEY_STARTS = (0.2, 0.8)    # refits along the valley: fractions of its span within bounds
+
+
+def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
+             train: ft.Data, test: ft.Data, max_nfev: int, alpha: float) -> list[str]:
+    """Search the final set's least-squares valley for other minima.
+
+    Parameters that trade off (a drive's delay and bandwidth: the data fix their total lag)
+    can leave several minima along a curved valley of the cost, and their curvature
+    correlation need not show it (measured: |r| 0.1-0.8 between two such minima); the
+    curvature uncertainty at one minimum is then not the uncertainty. So a final set of
+    two or more parameters is refitted from ``VALLEY_STARTS`` along the straight line
+    through its solution in the direction the data pin down least (the principal axis of
+    its covariance, in the fit's own coordinates) across the bounds. A minimum reached
+    whose held-out residual is not significantly worse than the best one's (one-sided HAC
+    test at ``alpha``) is as plausible: the values stay the joint search's, and each
+    parameter's uncertainty widens to span every plausible minimum's 95 % interval. Says
+    what it found in one line."""
+    labels = list(final.values)
+    if len(labels) < 2 or not VALLEY_STARTS:
+        return []
+    group = labels
+    kinds = [by_name[n] for n in final.effects or (final.name,)]
+    rate = test.measurements[0].rate
+
+    def instances(values: Mapping[str, float]) -> list[Effect]:
+        return [cls(**{k[len(cls.name) + 1:]: v for k, v in values.items()
+                       if k.startswith(cls.name + ".")}) for cls in kinds]
+
+    add = instances(final.values)
+    targets = [ft.target(base, k, add) for k in labels]
+    idx = [labels.index(g) for g in group]
+    s_u = np.array([final.sigma.get(labels[i], math.nan)
+                    / abs(targets[i].dv_du(final.values[labels[i]])) for i in idx])
+    if not np.all(np.isfinite(s_u)) or not np.all(s_u > 0):
+        return []
+    cmat = np.eye(len(idx))
+    for (a, b), r in final.corr.items():
+        if a in group and b in group:
+            i, j = group.index(a), group.index(b)
+            cmat[i, j] = cmat[j, i] = r
+    w, vecs = np.linalg.eigh(cmat * np.outer(s_u, s_u))
+    d = vecs[:, int(np.argmax(w))]
+    t_lo, t_hi = -math.inf, math.inf
+    for k, i in enumerate(idx):  # the line u = t d (u = 0 at the solution) within bounds
+        lo, hi = targets[i].u_bounds
+        if abs(d[k]) > 1e-12:
+            a, b = sorted((lo / d[k], hi / d[k]))
+            t_lo, t_hi = max(t_lo, a), min(t_hi, b)
+    if not (math.isfinite(t_lo) and math.isfinite(t_hi) and t_hi > t_lo):
+        return []
+
+    def scored(values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        model = ft.rebuild(base, instances(values), dict(values), targets, rate)
+        return train.residuals(train.simulate(model)), test.residuals(test.simulate(model))
+
+    try:
+        r_train, r_test = scored(final.values)
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return []
+    minima = [(float(np.mean(r_train ** 2)), dict(final.values), dict(final.sigma), r_test)]
+    for f in VALLEY_STARTS:
+        t = t_lo + f * (t_hi - t_lo)
+        start = dict(final.values)
+        for k, i in enumerate(idx):
+            start[labels[i]] = targets[i].from_u(t * d[k])
+        add_s = instances(start)
+        try:
+            res = ft.fit(base, train, [ft.target(base, k, add_s) for k in labels], add_s,
+                         jobs=1, max_nfev=max_nfev)
+            if not res.success:
+                continue
+            rt, rs = scored(res.values)
+        except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+            continue
+        minima.append((float(np.mean(rt ** 2)), dict(res.values), dict(res.sigma), rs))
+    own = minima[0]
+    ref = min(minima, key=lambda m: float(np.mean(m[3] ** 2)))  # best on the held-out data
+    segs = test.segments()
+    plausible = [m for m in minima if m is own or m is ref
+                 or stats.improvement_test(m[3], ref[3], segs)[1] >= alpha]
+    distinct = [m for i, m in enumerate(plausible) if all(
+        any(abs(m[1][g] - o[1][g]) > 1.96 * max(o[2].get(g, 0.0), m[2].get(g, 0.0))
+            for g in group) for o in plausible[:i])]
+    z = 1.959964
+    for name in labels:
+        v = final.values[name]
+        ends = [(m[1][name] - z * m[2].get(name, 0.0), m[1][name] + z * m[2].get(name, 0.0))
+                for m in plausible]
+        half = max(max(v - lo, hi - v) for lo, hi in ends)
+        if math.isfinite(half):
+            final.sigma[name] = half / z
+    names = " and ".join(group)
+    if len(distinct) < 2:
+        return [f"valley of {names}: refitted from {len(VALLEY_STARTS)} other starts "
+                f"along it, no other minimum as good"]
+
+    def where(m: tuple[float, dict[str, float], dict[str, float], np.ndarray]) -> str:
+        return ", ".join(f"{g} {stats.fmt(m[1][g], m[2].get(g, math.nan), final.units.get(g, ''))}"
+                         for g in group)
+
+    return [f"valley of {names}: {len(distinct)} least-squares minima the held-out data "
+            f"cannot tell apart ({'; '.join(where(m) for m in distinct)}); the values are "
+            f"the joint search's and their uncertainties span all of them (the data fix a "
+            f"combination, not each)"]
 
 
 def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],
