@@ -228,7 +228,8 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
         for name, t in sorted(tr.events.items(), key=lambda x: (not math.isfinite(x[1]),
                                                                  x[1])):
             shown = f"{t * 1e3:.2f} ms" if math.isfinite(t) else "--"
-            _plain(f"  event {name:<22} {shown}")
+            found = "  (found in the channels)" if name in tr.event_sources else ""
+            _plain(f"  event {name:<22} {shown}{found}")
 
 
 def _info_doc(path: Path, r: Any) -> dict[str, Any]:
@@ -252,7 +253,9 @@ def _info_doc(path: Path, r: Any) -> dict[str, Any]:
                        "samples": int(t.size) if t is not None else 0,
                        "start_s": float(t[0]) if t is not None and t.size else None,
                        "end_s": float(t[-1]) if t is not None and t.size else None,
-                       "channels": chans, "events": [{"name": k, "time_s": v} for k, v in ev],
+                       "channels": chans, "events": [{"name": k, "time_s": v,
+                                                   "source": tr.event_sources.get(k)}
+                                                  for k, v in ev],
                        "commands": sorted(tr.commands)})
     cals = r.metadata.get("calibrations")
     loop = r.metadata.get("loop_lateness")

@@ -143,6 +143,7 @@ def test_info_and_simulate_json_validate_and_match_the_file(tmp_path) -> None:
     assert info["kind"] == "simulated" and tr["samples"] == run.trials[0].time.size
     times = [e["time_s"] for e in tr["events"] if e["time_s"] is not None]
     assert times == sorted(times) and len(times) >= 3
+    assert all(e["source"] is None for e in tr["events"])  # the simulation's own events
     force = next(c for c in tr["channels"] if c["name"] == "force")
     assert force["max"] == pytest.approx(float(run.trials[0].channels["force"].max()))
     cf = next(c for c in tr["channels"] if c["name"] == "contact_force")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import threading
 import time
@@ -390,6 +391,8 @@ def test_a_measured_run_stores_the_events_found_in_it(forte_run) -> None:
             a = f[f"trial_000/events/{name}"].attrs
             assert a["units"] == "s" and a["method"] == found_events.METHODS[name]
     assert tr.events["key_starts"] < tr.events["strike"]
+    shown = CliRunner().invoke(app, ["info", str(run.path)]).stdout
+    assert re.search(r"event strike +\d+\.\d+ ms +\(found in the channels\)", shown), shown
     t = tr.channels["time"]
     keep = (t >= 0) & (t <= 0.3)
     tk, force = t[keep], np.clip(tr.channels["force"][keep], 0, None)
