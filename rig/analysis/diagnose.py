@@ -727,19 +727,22 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
         half = max(max(v - lo, hi - v) for lo, hi in ends)
         if math.isfinite(half):
             final.sigma[name] = half / z
-    names = " and ".join(group)
     if len(distinct) < 2:
-        return [f"valley of {names}: refitted from {len(VALLEY_STARTS)} other starts "
+        return [f"valley of {' and '.join(group)}: refitted from {len(VALLEY_STARTS)} other starts "
                 f"along it, no other minimum as good"]
+
+    moved = [g for g in group if any(  # the parameters the minima disagree on
+        abs(m[1][g] - o[1][g]) > 1.96 * max(o[2].get(g, 0.0), m[2].get(g, 0.0))
+        for m in distinct for o in distinct)]
 
     def where(m: tuple[float, dict[str, float], dict[str, float], np.ndarray]) -> str:
         return ", ".join(f"{g} {stats.fmt(m[1][g], m[2].get(g, math.nan), final.units.get(g, ''))}"
-                         for g in group)
+                         for g in moved)
 
-    return [f"valley of {names}: {len(distinct)} least-squares minima the held-out data "
-            f"cannot tell apart ({'; '.join(where(m) for m in distinct)}); the values are "
-            f"the joint search's and their uncertainties span all of them (the data fix a "
-            f"combination, not each)"]
+    return [f"valley of {' and '.join(moved)}: {len(distinct)} least-squares minima the "
+            f"held-out data cannot tell apart ({'; '.join(where(m) for m in distinct)}); the "
+            f"values are the joint search's and their uncertainties span all of them (the data "
+            f"fix a combination, not each)"]
 
 
 def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],
