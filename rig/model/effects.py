@@ -270,8 +270,32 @@ def _uniform(time: np.ndarray, force: np.ndarray) -> float:
 
 
 def _shift(time: np.ndarray, force: np.ndarray, delay: float) -> np.ndarray:
-    """force(t - delay), held at the end values outside the record."""
-    return np.interp(time - delay, time, force)
+    """force(t - delay) on a uniform grid, held at the end values outside the record.
+
+    A whole number of samples moves the record; the fraction, taken in [0.5, 1.5)
+    samples, goes through a first-order Thiran all-pass, ``(a + z^-1) / (1 + a z^-1)``
+    with ``a = (1 - d) / (1 + d)``: its gain is exactly 1 at every frequency and its group
+    delay d at low frequencies. Linear interpolation between samples would low-pass the
+    record by an amount that depends on the delay's fraction of a sample (cos(pi f dt): 8 %
+    at 250 Hz and 2 kHz half-way between samples), which made a fitted delay's cost ripple
+    with a period of one sample and its minima trade against a low-pass's bandwidth."""
+    from scipy import signal
+
+    x = np.asarray(force, float)
+    if x.size < 2 or delay == 0:
+        return x.copy()
+    d_samples = delay / _uniform(time, x)
+    m = math.floor(d_samples - 0.5)
+    frac = d_samples - m  # in [0.5, 1.5)
+    if m >= 0:
+        x = np.concatenate([np.full(min(m, x.size), x[0]), x[:x.size - min(m, x.size)]])
+    else:
+        k = min(-m, x.size)
+        x = np.concatenate([x[k:], np.full(k, x[-1])])
+    a = (1.0 - frac) / (1.0 + frac)
+    zi = signal.lfilter_zi([a, 1.0], [1.0, a]) * x[0]
+    out, _ = signal.lfilter([a, 1.0], [1.0, a], x, zi=zi)
+    return np.asarray(out)
 
 
 class DriveDynamics(Effect):
