@@ -221,10 +221,9 @@ def test_user_effect_with_own_coordinate_found_written_refitted_and_cuts_the_err
 def test_a_correlated_valley_is_searched_and_its_minima_widen_the_interval(
         tmp_path: Path, monkeypatch) -> None:
     """The drive's delay and bandwidth trade off (only their total lag is pinned down): the
-    final set is refitted from other starts along the valley of its strongly correlated
-    parameters, said in a note; the stated uncertainties never shrink, and the values stay
-    the joint search's. Without the starts, the same diagnosis gives the curvature
-    uncertainties alone."""
+    final set is refitted from other starts along its valley and scored along it, said in a
+    note; the stated uncertainties never shrink and the values stay the final fit's.
+    Without the starts, the same diagnosis gives the curvature uncertainties alone."""
     truth = ActionModel(effects=[{"drive_dynamics": truth_values(BUILTIN["drive_dynamics"])}])
     meas = make_run(tmp_path / "run.h5", truth, False, seed=102)
 
@@ -243,8 +242,11 @@ def test_a_correlated_valley_is_searched_and_its_minima_widen_the_interval(
     assert any(n.startswith("valley of drive_dynamics.delay and drive_dynamics.bandwidth")
                for n in with_valley.notes)
     assert not any(n.startswith("valley") for n in without.notes)
-    # seed 102: a second minimum (about 1.2 ms, 53 Hz against 3.9 ms, 135 Hz) as good on
-    # the held-out trial; the interval spans both
-    assert "2 least-squares minima" in next(n for n in with_valley.notes
-                                          if n.startswith("valley"))
-    assert a.sigma["drive_dynamics.delay"] > 5 * b.sigma["drive_dynamics.delay"]
+    # seed 102: a second minimum (about 1.5 ms, 73 Hz against 3.6 ms, 153 Hz) and values
+    # along the valley as good on the held-out trial; the interval spans them, and covers
+    # the truth (3 ms, 120 Hz)
+    note = next(n for n in with_valley.notes if n.startswith("valley"))
+    assert "2 least-squares minima" in note
+    assert a.sigma["drive_dynamics.delay"] > 1.5 * b.sigma["drive_dynamics.delay"]
+    for k, v in truth_values(BUILTIN["drive_dynamics"]).items():
+        assert abs(a.values[f"drive_dynamics.{k}"] - v) <= 1.96 * a.sigma[f"drive_dynamics.{k}"]

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -553,8 +553,14 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         if executor is None:
             ex.close()
     if chosen:
-        _add_input_noise(chosen[-1], base, by_name, train)
-        notes += _valleys(chosen[-1], base, by_name, train, test, final_nfev, alpha)
+        # the final values and uncertainties without the whole-blow alignment: a shift of
+        # up to align_s per trial is a bounded nuisance that trades with any lag the set
+        # holds (a drive's delay was fitted 0.5 ms off at +-0.1 ms with it)
+        train0, test0 = replace(train, align_s=0.0), replace(test, align_s=0.0)
+        if align_s > 0:
+            _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+        _add_input_noise(chosen[-1], base, by_name, train0)
+        notes += _valleys(chosen[-1], base, by_name, train0, test0, final_nfev, alpha)
     if first:
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
@@ -574,12 +580,14 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
 
 
 def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
-              train: ft.Data, test: ft.Data, max_nfev: int) -> None:
+              train: ft.Data, test: ft.Data, max_nfev: int, always: bool = False) -> None:
     """Refit an accepted set to convergence (``max_nfev``; a round's candidates stop at
     ``diagnose``'s ``max_nfev``, enough to rank but not to leave only noise) from its
     values, and rescore it on the held-out data, in place: the next round tests its
     additions against this model, so that an under-converged set does not leave a misfit
-    a further effect could take credit for."""
+    a further effect could take credit for. With ``always``, a successful refit's values,
+    uncertainties and correlations replace the set's whatever its cost (the final refit on
+    other data: the scores stay those the set was judged by)."""
     if not c.values or max_nfev <= 0:
         return
     add = [_instance(c, by_name[n]) for n in c.effects or (c.name,)]
@@ -587,6 +595,10 @@ def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect
     try:
         res = ft.fit(base, train, [ft.target(base, k, add) for k in specs], add, jobs=1,
                      max_nfev=max_nfev)
+        if always and res.success:  # new values and uncertainties; the scores stay
+            c.values, c.sigma, c.nfev = dict(res.values), dict(res.sigma), c.nfev + res.nfev
+            c.corr = _pair_corr(res)
+            return
         if not res.cost < c.train_cost:
             return
         model = ft.rebuild(base, add, res.values, res.targets, test.measurements[0].rate)
@@ -596,11 +608,17 @@ def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         return
     c.values, c.sigma = dict(res.values), dict(res.sigma)
-    c.corr = ({(a.label, b.label): float(res.corr[i, j]) for i, a in enumerate(res.targets)
-               for j, b in enumerate(res.targets) if i < j} if res.corr is not None else {})
+    c.corr = _pair_corr(res)
     c.train_cost, c.test_resid, c.nfev = res.cost, resid, c.nfev + res.nfev
     c.test_error = {k: cand[k][0] for k in c.test_error if k in cand}
     c.test_noise = {k: cand[k][1] for k in c.test_noise if k in cand}
+
+
+def _pair_corr(res: ft.FitResult) -> dict[tuple[str, str], float]:
+    if res.corr is None:
+        return {}
+    return {(a.label, b.label): float(res.corr[i, j]) for i, a in enumerate(res.targets)
+            for j, b in enumerate(res.targets) if i < j}
 
 
 def _noise_draws(model: ActionModel, test: ft.Data, how: str) -> np.ndarray | None:
@@ -636,6 +654,7 @@ def _add_input_noise(final: Candidate, base: ActionModel,
 
 
 VALLEY_STARTS = (0.2, 0.8)    # refits along the valley: fractions of its span within bounds
+VALLEY_BISECTIONS = 3         # refinements of each end of the plausible stretch
 
 
 def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
@@ -711,38 +730,60 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
         except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
             continue
         minima.append((float(np.mean(rt ** 2)), dict(res.values), dict(res.sigma), rs))
-    own = minima[0]
     ref = min(minima, key=lambda m: float(np.mean(m[3] ** 2)))  # best on the held-out data
     segs = test.segments()
-    plausible = [m for m in minima if m is own or m is ref
-                 or stats.improvement_test(m[3], ref[3], segs)[1] >= alpha]
-    distinct = [m for i, m in enumerate(plausible) if all(
-        any(abs(m[1][g] - o[1][g]) > 1.96 * max(o[2].get(g, 0.0), m[2].get(g, 0.0))
-            for g in group) for o in plausible[:i])]
+
+    def plausible(r: np.ndarray) -> bool:  # not significantly worse than the best
+        return r is ref[3] or stats.improvement_test(r, ref[3], segs)[1] >= alpha
+
+    kept = [m for m in minima if m is minima[0] or plausible(m[3])]
+    def at(t: float) -> dict[str, float]:
+        vals = dict(final.values)
+        for k, i in enumerate(idx):
+            vals[labels[i]] = targets[i].from_u(t * d[k])
+        return vals
+
+    def ok(t: float) -> bool:
+        try:
+            model = ft.rebuild(base, instances(at(t)), at(t), targets, rate)
+            return plausible(test.residuals(test.simulate(model)))
+        except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+            return False
+
+    points = []  # how far along the line, each way, the held-out data cannot tell
+    step0 = 2.0 * math.sqrt(max(float(np.max(w)), 0.0))
+    for sign, reach in ((1.0, t_hi), (-1.0, -t_lo)):
+        good, bad, t = 0.0, math.inf, step0
+        while t <= reach and ok(sign * t):  # double out until the data say no ...
+            good, t = t, 2.0 * t
+        bad = min(t, reach)
+        for _ in range(VALLEY_BISECTIONS if good > 0 else 0):  # ... then close in
+            mid = 0.5 * (good + bad)
+            good, bad = (mid, bad) if ok(sign * mid) else (good, mid)
+        if good > 0:
+            points.append(at(sign * good))
     z = 1.959964
+    spans: dict[str, tuple[float, float]] = {}
     for name in labels:
-        v = final.values[name]
-        ends = [(m[1][name] - z * m[2].get(name, 0.0), m[1][name] + z * m[2].get(name, 0.0))
-                for m in plausible]
-        half = max(max(v - lo, hi - v) for lo, hi in ends)
-        if math.isfinite(half):
+        v, s0 = final.values[name], final.sigma.get(name, 0.0)
+        lo = min([m[1][name] - z * m[2].get(name, 0.0) for m in kept]
+                 + [p[name] for p in points])
+        hi = max([m[1][name] + z * m[2].get(name, 0.0) for m in kept]
+                 + [p[name] for p in points])
+        half = max(v - lo, hi - v)
+        if math.isfinite(half) and half > z * s0 * (1 + 1e-9):
             final.sigma[name] = half / z
-    if len(distinct) < 2:
-        return [f"valley of {' and '.join(group)}: refitted from {len(VALLEY_STARTS)} other starts "
-                f"along it, no other minimum as good"]
-
-    moved = [g for g in group if any(  # the parameters the minima disagree on
-        abs(m[1][g] - o[1][g]) > 1.96 * max(o[2].get(g, 0.0), m[2].get(g, 0.0))
-        for m in distinct for o in distinct)]
-
-    def where(m: tuple[float, dict[str, float], dict[str, float], np.ndarray]) -> str:
-        return ", ".join(f"{g} {stats.fmt(m[1][g], m[2].get(g, math.nan), final.units.get(g, ''))}"
-                         for g in moved)
-
-    return [f"valley of {' and '.join(moved)}: {len(distinct)} least-squares minima the "
-            f"held-out data cannot tell apart ({'; '.join(where(m) for m in distinct)}); the "
-            f"values are the joint search's and their uncertainties span all of them (the data "
-            f"fix a combination, not each)"]
+            t = targets[labels.index(name)]
+            spans[name] = (max(lo, t.lo), min(hi, t.hi))
+    if not spans:
+        return [f"valley of {' and '.join(group)}: refitted from {len(VALLEY_STARTS)} other "
+                f"starts along it, and no value along it beyond the stated uncertainty is as "
+                f"good on the held-out data"]
+    shown = "; ".join(f"{k} {lo:.3g} to {hi:.3g}{(' ' + _unit(final.units.get(k, ''))).rstrip()}"
+                      for k, (lo, hi) in spans.items())
+    return [f"valley of {' and '.join(group)}: {len(kept)} least-squares minima, and values "
+            f"along it, the held-out data cannot tell from the best; the uncertainties widen "
+            f"to span them ({shown}; the data fix a combination, not each)"]
 
 
 def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],
