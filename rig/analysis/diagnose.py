@@ -655,6 +655,8 @@ def _add_input_noise(final: Candidate, base: ActionModel,
 
 VALLEY_STARTS = (0.2, 0.8)    # refits along the valley: fractions of its span within bounds
 VALLEY_BISECTIONS = 3         # refinements of each end of the plausible stretch
+VALLEY_CORR = 0.9             # pairs correlated this strongly are walked along (curved)
+VALLEY_PARTNER_NFEV = 8       # evaluations of the partner's refit at each step
 
 
 def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
@@ -743,25 +745,54 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
             vals[labels[i]] = targets[i].from_u(t * d[k])
         return vals
 
-    def ok(t: float) -> bool:
+    def plausible_at(vals: dict[str, float]) -> dict[str, float] | None:
         try:
-            model = ft.rebuild(base, instances(at(t)), at(t), targets, rate)
-            return plausible(test.residuals(test.simulate(model)))
+            model = ft.rebuild(base, instances(vals), vals, targets, rate)
+            return vals if plausible(test.residuals(test.simulate(model))) else None
         except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-            return False
+            return None
 
-    points = []  # how far along the line, each way, the held-out data cannot tell
-    step0 = 2.0 * math.sqrt(max(float(np.max(w)), 0.0))
-    for sign, reach in ((1.0, t_hi), (-1.0, -t_lo)):
-        good, bad, t = 0.0, math.inf, step0
-        while t <= reach and ok(sign * t):  # double out until the data say no ...
-            good, t = t, 2.0 * t
-        bad = min(t, reach)
-        for _ in range(VALLEY_BISECTIONS if good > 0 else 0):  # ... then close in
-            mid = 0.5 * (good + bad)
-            good, bad = (mid, bad) if ok(sign * mid) else (good, mid)
-        if good > 0:
-            points.append(at(sign * good))
+    def walk(try_at: Callable[[float], dict[str, float] | None], step0: float,
+             reach: tuple[float, float]) -> list[dict[str, float]]:
+        """The farthest plausible values each way along t: doubling out from ``step0``
+        until the held-out data say no, then ``VALLEY_BISECTIONS`` bisections."""
+        out = []
+        for sign, far in ((1.0, reach[1]), (-1.0, -reach[0])):
+            good, found, t = 0.0, None, step0
+            while t <= far and (v := try_at(sign * t)) is not None:
+                good, found, t = t, v, 2.0 * t
+            bad = min(t, far)
+            for _ in range(VALLEY_BISECTIONS if found is not None else 0):
+                mid = 0.5 * (good + bad)
+                v = try_at(sign * mid)
+                good, bad, found = (mid, bad, v) if v is not None else (good, mid, found)
+            if found is not None:
+                out.append(found)
+        return out
+
+    points = walk(lambda t: plausible_at(at(t)), 2.0 * math.sqrt(max(float(np.max(w)), 0.0)),
+                  (t_lo, t_hi))
+    # along each strongly correlated pair's curved valley: move the first, refit the second
+    for (pa, pb), r in final.corr.items():
+        if abs(r) < VALLEY_CORR:
+            continue
+        ia = labels.index(pa)
+        sa = final.sigma.get(pa, math.nan) / abs(targets[ia].dv_du(final.values[pa]))
+        if not (math.isfinite(sa) and sa > 0):
+            continue
+
+        def partner(t: float, pa: str = pa, pb: str = pb, ia: int = ia) -> dict[str, float] | None:
+            vals = dict(final.values)
+            vals[pa] = targets[ia].from_u(t)
+            add_t = instances(vals)
+            try:
+                res = ft.fit(base, train, [ft.target(base, pb, add_t)], add_t, jobs=1,
+                             max_nfev=VALLEY_PARTNER_NFEV)
+            except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+                return None
+            return plausible_at({**vals, pb: res.values[pb]}) if res.success else None
+
+        points += walk(partner, 2.0 * sa, targets[ia].u_bounds)
     z = 1.959964
     spans: dict[str, tuple[float, float]] = {}
     for name in labels:
@@ -773,8 +804,8 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
         half = max(v - lo, hi - v)
         if math.isfinite(half) and half > z * s0 * (1 + 1e-9):
             final.sigma[name] = half / z
-            t = targets[labels.index(name)]
-            spans[name] = (max(lo, t.lo), min(hi, t.hi))
+            tg = targets[labels.index(name)]
+            spans[name] = (max(lo, tg.lo), min(hi, tg.hi))
     if not spans:
         return [f"valley of {' and '.join(group)}: refitted from {len(VALLEY_STARTS)} other "
                 f"starts along it, and no value along it beyond the stated uncertainty is as "
