@@ -661,23 +661,25 @@ VALLEY_PARTNER_NFEV = 8       # evaluations of the partner's refit at each step
 
 def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
              train: ft.Data, test: ft.Data, max_nfev: int, alpha: float) -> list[str]:
-    """Search the final set's least-squares valley for other minima.
+    """Search the final set's least-squares valley for other minima and values as good.
 
     Parameters that trade off (a drive's delay and bandwidth: the data fix their total lag)
     can leave several minima along a curved valley of the cost, and their curvature
     correlation need not show it (measured: |r| 0.1-0.8 between two such minima); the
     curvature uncertainty at one minimum is then not the uncertainty. So a final set of
-    two or more parameters is refitted from ``VALLEY_STARTS`` along the straight line
+    two or more parameters is (1) refitted from ``VALLEY_STARTS`` along the straight line
     through its solution in the direction the data pin down least (the principal axis of
-    its covariance, in the fit's own coordinates) across the bounds. A minimum reached
-    whose held-out residual is not significantly worse than the best one's (one-sided HAC
-    test at ``alpha``) is as plausible: the values stay the joint search's, and each
-    parameter's uncertainty widens to span every plausible minimum's 95 % interval. Says
-    what it found in one line."""
+    its covariance, in the fit's own coordinates) across the bounds; (2) scored along
+    that line, doubling out from two standard deviations each way and bisecting
+    ``VALLEY_BISECTIONS`` times; (3) for each pair correlated by ``VALLEY_CORR`` or more,
+    scored along its curved valley the same way, moving one and refitting the other. A
+    minimum or value whose held-out residual is not significantly worse than the best
+    one's (one-sided HAC test at ``alpha``) is as plausible: the values stay the final
+    fit's, and each parameter's uncertainty widens to span every plausible minimum's 95 %
+    interval and every plausible value. Says what it found in one line."""
     labels = list(final.values)
     if len(labels) < 2 or not VALLEY_STARTS:
         return []
-    group = labels
     kinds = [by_name[n] for n in final.effects or (final.name,)]
     rate = test.measurements[0].rate
 
@@ -687,21 +689,19 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
 
     add = instances(final.values)
     targets = [ft.target(base, k, add) for k in labels]
-    idx = [labels.index(g) for g in group]
-    s_u = np.array([final.sigma.get(labels[i], math.nan)
-                    / abs(targets[i].dv_du(final.values[labels[i]])) for i in idx])
+    s_u = np.array([final.sigma.get(k, math.nan) / abs(t.dv_du(final.values[k]))
+                    for k, t in zip(labels, targets, strict=True)])
     if not np.all(np.isfinite(s_u)) or not np.all(s_u > 0):
         return []
-    cmat = np.eye(len(idx))
+    cmat = np.eye(len(labels))
     for (a, b), r in final.corr.items():
-        if a in group and b in group:
-            i, j = group.index(a), group.index(b)
-            cmat[i, j] = cmat[j, i] = r
+        i, j = labels.index(a), labels.index(b)
+        cmat[i, j] = cmat[j, i] = r
     w, vecs = np.linalg.eigh(cmat * np.outer(s_u, s_u))
     d = vecs[:, int(np.argmax(w))]
     t_lo, t_hi = -math.inf, math.inf
-    for k, i in enumerate(idx):  # the line u = t d (u = 0 at the solution) within bounds
-        lo, hi = targets[i].u_bounds
+    for k, tg in enumerate(targets):  # the line u = t d (u = 0 at the solution), in bounds
+        lo, hi = tg.u_bounds
         if abs(d[k]) > 1e-12:
             a, b = sorted((lo / d[k], hi / d[k]))
             t_lo, t_hi = max(t_lo, a), min(t_hi, b)
@@ -716,13 +716,13 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
         r_train, r_test = scored(final.values)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         return []
+    def at(t: float) -> dict[str, float]:
+        return {k: tg.from_u(t * d[j]) for j, (k, tg) in enumerate(zip(labels, targets,
+                                                                        strict=True))}
+
     minima = [(float(np.mean(r_train ** 2)), dict(final.values), dict(final.sigma), r_test)]
     for f in VALLEY_STARTS:
-        t = t_lo + f * (t_hi - t_lo)
-        start = dict(final.values)
-        for k, i in enumerate(idx):
-            start[labels[i]] = targets[i].from_u(t * d[k])
-        add_s = instances(start)
+        add_s = instances(at(t_lo + f * (t_hi - t_lo)))
         try:
             res = ft.fit(base, train, [ft.target(base, k, add_s) for k in labels], add_s,
                          jobs=1, max_nfev=max_nfev)
@@ -739,11 +739,6 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
         return r is ref[3] or stats.improvement_test(r, ref[3], segs)[1] >= alpha
 
     kept = [m for m in minima if m is minima[0] or plausible(m[3])]
-    def at(t: float) -> dict[str, float]:
-        vals = dict(final.values)
-        for k, i in enumerate(idx):
-            vals[labels[i]] = targets[i].from_u(t * d[k])
-        return vals
 
     def plausible_at(vals: dict[str, float]) -> dict[str, float] | None:
         try:
@@ -807,14 +802,16 @@ def _valleys(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Eff
             tg = targets[labels.index(name)]
             spans[name] = (max(lo, tg.lo), min(hi, tg.hi))
     if not spans:
-        return [f"valley of {' and '.join(group)}: refitted from {len(VALLEY_STARTS)} other "
+        return [f"valley of {' and '.join(labels)}: refitted from {len(VALLEY_STARTS)} other "
                 f"starts along it, and no value along it beyond the stated uncertainty is as "
                 f"good on the held-out data"]
     shown = "; ".join(f"{k} {lo:.3g} to {hi:.3g}{(' ' + _unit(final.units.get(k, ''))).rstrip()}"
                       for k, (lo, hi) in spans.items())
-    return [f"valley of {' and '.join(group)}: {len(kept)} least-squares minima, and values "
-            f"along it, the held-out data cannot tell from the best; the uncertainties widen "
-            f"to span them ({shown}; the data fix a combination, not each)"]
+    minima_text = "a least-squares minimum" if len(kept) == 1 else \
+        f"{len(kept)} least-squares minima"
+    return [f"valley of {' and '.join(labels)}: {minima_text}, and values along it, the "
+            f"held-out data cannot tell from the best; the uncertainties widen to span them "
+            f"({shown}; the data fix a combination, not each)"]
 
 
 def _backward(chosen: list[Candidate], by_name: Mapping[str, type[Effect]],
