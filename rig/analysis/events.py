@@ -6,29 +6,33 @@ channel (motion from the start pose, any sign convention: directions come from t
 
 - ``key_starts``: ``key_dip`` leaves its rest by more than the model's threshold
   (``KEY_MOVE_THRESHOLD_M``, 20 um of key-top travel), interpolated between samples.
-- ``strike``: ``hammer_angle``. The hammer reverses at the string within a millisecond, so
-  its velocity (sample differences) departs from the approach's at one sample interval:
-  the earliest of the intervals before the reversal whose velocity falls short of the
-  linear extrapolation of the three before it by more than the threshold. Its midpoint is
-  the strike time (the hammer's contact with the string is abrupt: within about a quarter
-  of a sample on the simulated rig).
+- ``strike``: ``hammer_angle``. The hammer reverses at the string within a millisecond: the
+  first interval after the key starts whose motion is no longer toward the hammer's
+  farthest excursion, provided the hammer was still at half its top approach speed 1.5 ms
+  before (a hammer that turns back short of the string slows over tens of ms: no strike).
+  From there back, the intervals whose velocity (sample differences) falls short of the
+  linear extrapolation of the three before it by more than the threshold; the midpoint
+  of the earliest is the strike time (the contact is abrupt).
 - ``check`` (``hammer_angle`` after the rebound) and ``key_bottom`` (``key_dip``): felt
-  catches a moving body, and the deceleration builds over several samples. Found as the
-  strike (the first departure from which the speed keeps falling to half its value
-  within 5 ms), then placed within them by a hinge fit: over the six intervals before
-  and one after the first departed one, velocity = a + b t + c max(0, t - t0)^2 (a force
-  rising linearly from the contact's onset t0), t0 by least squares on a 10 us grid.
+  catches a moving body, and the deceleration builds over several samples. Anchored at
+  the first interval whose speed is below half the largest of the eight before it and
+  stays there for 4 ms (the felt holds the body), then placed by a hinge fit over those
+  eight intervals: velocity = a + b t + c max(0, t - t0)^2 (a force rising linearly from
+  the contact's onset t0), t0 by least squares on a 10 us grid. Not found when the fit's
+  RMS residual exceeds 5 % of the speed the catch took away (a ringing flexible shank
+  hides the back check's catch in the hammer's encoder).
 
 The threshold: four quantization steps of the channel per sample interval, or five times
-the robust scatter of the extrapolation's error over the rest samples, whichever is larger.
-An event whose mark is not there (no reversal at a string, no catch before the trial ends,
-a channel missing) is not found and not stored. ``let_off``, ``toe_meets_button``,
-``string_release`` and ``key_release`` are not found: at 2 kHz their marks are within one
-sample of a larger one (forte: let-off 0.3 ms before the strike) or below the encoders'
-resolution (the string's force fades out over the last few tenths of a millisecond).
+the robust scatter of the extrapolation's error over the twelve intervals that end four
+before the anchor, whichever is larger. An event whose mark is not there (no reversal at
+a string, no catch before the trial ends, a channel missing) is not found and not stored.
+``let_off``, ``toe_meets_button``, ``string_release`` and ``key_release`` are not found:
+at 2 kHz their marks are within one sample of a larger one (forte: let-off 0.3 ms before
+the strike) or below the encoders' resolution (the string's force fades out over the
+last few tenths of a millisecond).
 
 Accuracy against the model's own events on the simulated rig's channels (80 trials: five
-truth models, eight blows of 1-40 N, two seeds; ``benchmarks/events.py``, figures in
+truth models, eight blows of 1.2-40 N, two seeds; ``benchmarks/events.py``, figures in
 docs/performance.md): key start within 0.05 ms; strike within 0.6 ms (rigid shank) and
 0.75 ms (flexible shank: its ringing moves the hammer's encoder); check and key bottom
 within 0.5 ms where found.
@@ -58,7 +62,6 @@ QUANT_STEPS = 4.0     # threshold floor: quantization steps per sample interval
 SCATTER_K = 5.0       # ... or this many robust standard deviations of the extrapolation error
 SCATTER_INTERVALS, SCATTER_GAP = 12, 4  # ... over these intervals, ending this far back
 REVERSAL_INTERVALS = 3  # the hammer is still fast this many intervals before its reversal
-HINGE_BEFORE, HINGE_AFTER = 6, 1  # intervals of the hinge fit around the first departed one
 HINGE_GRID_S = 1e-5
 HOLD_INTERVALS = 8     # a caught body stays below half its speed this long (4 ms)
 CATCH_WINDOW = 8       # intervals of the hinge fit before the anchor
