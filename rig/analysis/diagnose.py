@@ -553,11 +553,14 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         if executor is None:
             ex.close()
     if chosen:
-        # the final values and uncertainties without the whole-blow alignment: a shift of
-        # up to align_s per trial is a bounded nuisance that trades with any lag the set
-        # holds (a drive's delay was fitted 0.5 ms off at +-0.1 ms with it)
-        train0, test0 = replace(train, align_s=0.0), replace(test, align_s=0.0)
-        if align_s > 0:
+        # a set that delays or filters the input force: its final values and uncertainties
+        # without the whole-blow alignment, a shift of up to align_s per trial that trades
+        # with its lag (a drive's delay was fitted 0.5 ms off at +-0.1 ms with it); other
+        # sets keep it (it takes the input noise's timing jitter out of their fit)
+        train0, test0 = train, test
+        if align_s > 0 and any(_moves_input(by_name[n]) for n in chosen[-1].effects
+                               or (chosen[-1].name,)):
+            train0, test0 = replace(train, align_s=0.0), replace(test, align_s=0.0)
             _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], base, by_name, train0, test0, final_nfev, alpha)
@@ -612,6 +615,11 @@ def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect
     c.train_cost, c.test_resid, c.nfev = res.cost, resid, c.nfev + res.nfev
     c.test_error = {k: cand[k][0] for k in c.test_error if k in cand}
     c.test_noise = {k: cand[k][1] for k in c.test_noise if k in cand}
+
+
+def _moves_input(cls: type[Effect]) -> bool:
+    """Whether the effect transforms the input force (a lag or a filter in time)."""
+    return cls.transform_input is not Effect.transform_input
 
 
 def _pair_corr(res: ft.FitResult) -> dict[tuple[str, str], float]:
