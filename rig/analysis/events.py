@@ -116,9 +116,15 @@ class _Motion:
         return i + 1
 
 
-def _rest_mask(t: np.ndarray) -> np.ndarray:
+REST_S = 0.01  # without enough samples before t = 0, the action is at rest this long
+
+
+def rest_mask(t: np.ndarray) -> np.ndarray:
+    """Samples of the action at rest: before t = 0 if there are enough, else the first
+    ``REST_S``. (Here rather than in rig.analysis.measurement, which needs the model:
+    ``rig run`` finds events without importing it.)"""
     before = t < 0
-    return before if before.sum() >= 10 else t < min(0.01, float(t[0]) + 0.01)
+    return before if before.sum() >= 10 else t < min(REST_S, float(t[0]) + REST_S)
 
 
 def _key_starts(m: _Motion) -> tuple[float, float | None]:
@@ -200,7 +206,7 @@ def find(time: np.ndarray, channels: Mapping[str, np.ndarray]) -> dict[str, floa
     out: dict[str, float] = {}
     if t.size < 32:
         return out
-    rest = _rest_mask(t)
+    rest = rest_mask(t)
     key = channels.get("key_dip")
     if key is not None and np.all(np.isfinite(key)):
         km = _Motion(t, np.asarray(key, float), rest)

@@ -18,13 +18,14 @@ from typing import Any
 import numpy as np
 
 from rig import profiles, runfile
+from rig.analysis import events
 from rig.errors import InputError
 from rig.model.action import ActionModel, SimResult
 
 INPUTS = ("force", "command", "motion")
 RAW_UNITS = {"V/V", "V", "counts", "1", ""}
 RELATIVE_UNITS = {"rad", "m"}
-REST_S = 0.01
+REST_S = events.REST_S
 SMOOTH_HZ = 250.0
 
 
@@ -66,8 +67,7 @@ class Measurement:
 
     def rest_mask(self) -> np.ndarray:
         """Samples of the action at rest: before t = 0 if there are enough, else t < 10 ms."""
-        before = self.time < 0
-        return before if before.sum() >= 10 else self.time < min(REST_S, self.time[0] + REST_S)
+        return events.rest_mask(self.time)
 
     def relative(self, name: str) -> bool:
         return self.units.get(name, "") in RELATIVE_UNITS
