@@ -58,9 +58,9 @@ class DiskFull(OSError):
 
 def bytes_per_sample(cfg: RigConfig) -> int:
     """Upper estimate of the run file's bytes per 2 kHz sample: raw and calibrated channels
-    (time, sample counter, one per bridge, counts and SI per encoder) as float64, plus the
-    loop's records (10 float64 per control period)."""
-    channels = 4 + 2 * int(cfg.channels.strain_gauge.enabled) + 2 * len(cfg.channels.encoders)
+    (time, sample counter, raw and SI per sensor) as float64, plus the loop's records
+    (10 float64 per control period)."""
+    channels = 2 + 2 * len(calrecords.sensors(cfg))
     per_tick = 8 * len(COMMAND_UNITS) / cfg.rates.samples_per_cycle
     return int(8 * channels + per_tick) + 8
 
@@ -86,6 +86,8 @@ class Acquisition:
         self.next_sample = 0
         self.units = calrecords.channel_units(cfg)
         self.docs = calrecords.channel_docs(cfg)
+        self.sample_col = calrecords.column(cfg, calrecords.SAMPLE)
+        self.feedback_col = calrecords.column(cfg, calrecords.FEEDBACK)
         self.stop: tuple[Any, ...] | None = None
 
     # -- messages --------------------------------------------------------------------
@@ -121,7 +123,7 @@ class Acquisition:
         """Check counter continuity and file rows under their trials."""
         if rows.shape[0] == 0:
             return
-        counter = rows[:, 0]
+        counter = rows[:, self.sample_col]
         if counter[0] != self.next_sample or np.any(np.diff(counter) != 1):
             bad = self.next_sample if counter[0] != self.next_sample else int(
                 counter[np.flatnonzero(np.diff(counter) != 1)[0]]) + 1
@@ -256,7 +258,8 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
             rows = reader.read(period)
             acq.take(rows)
             if rows.shape[0]:
-                reader.publish_feedback(int(rows[-1, 0]), float(rows[-1, 1]))
+                reader.publish_feedback(int(rows[-1, acq.sample_col]),
+                                        float(rows[-1, acq.feedback_col]))
             now = time.monotonic()
             if now - last_flush >= cfg.acquisition.flush_period_s:
                 acq.write_pending()

@@ -1,4 +1,11 @@
-"""Calibration records in use, and raw -> SI conversion of acquired blocks.
+"""The measured-run schema: the rig's sensors, their run-file channels and calibrations.
+
+One table, ``sensors(cfg)``, lists every sensor of a rig in the order of the card rows'
+columns (after ``sample``): its raw column and SI channel with units and descriptions,
+its data-sheet calibration, its raw -> SI conversion, its NI channel set-up and its
+simulated chain (true value -> reading). The NI reader, the simulated rig, the
+acquisition process, `rig synth` and the calibration bench all read it; adding a sensor
+is one entry in ``SENSORS`` (docs/architecture.md, "Add a sensor").
 
 Which calibration applies to each sensor is asked in one place,
 ``rig.calibration.records.lookup`` (the newest valid record per sensor, else the
@@ -11,6 +18,8 @@ data sheet's nominal one from ``nominal`` here, marked ``nominal: true``). Conve
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -19,7 +28,6 @@ import numpy as np
 from rig import encoders, loadcell, strain
 from rig.config import RigConfig
 from rig.errors import InputError
-
 
 @dataclass(frozen=True)
 class CalRecord:
@@ -38,41 +46,152 @@ class CalRecord:
         return asdict(self)
 
 
+Convert = Callable[[np.ndarray, float, float], Any]  # (values, sensitivity, offset)
+Truth = Callable[[Mapping[str, np.ndarray]], np.ndarray | None]
+
+
+@dataclass(frozen=True)
+class SimChain:
+    """How the simulated rig (and `rig synth`) makes a sensor's reading from the action.
+
+    reading = to_raw(filtered true value + noise, true sensitivity, true offset); the true
+    calibration is the nominal one moved by seeded spreads (rig.sim_backend.sensors)."""
+
+    truth: Truth               # true value from the model's channels ("force": the drive's
+                               # force on the key top); None: the model lacks it (see needs)
+    noise: float | None = None         # 1 sigma added to the true value (SI); None: none drawn
+    spread: float = 0.0                # relative 1 sigma of the true sensitivity around nominal
+    offset_sd: float | None = None     # 1 sigma of the true offset around 0; None: not drawn
+    filter_hz: float | None = None     # a 4-pole low-pass in the chain (before the noise)
+    counts_from_start: bool = False    # a counter: count 0 at the start (true offset = the
+                                       # true value then)
+    needs: str = ""                    # what the model must have for ``truth`` (the error)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """One sensor: a raw column of the card rows and the SI channel calibrated from it."""
+
+    name: str                  # its calibration record's sensor name
+    raw: str                   # raw column (card rows and run file)
+    raw_units: str
+    raw_doc: str
+    channel: str               # calibrated (SI) channel
+    units: str
+    doc: str
+    sensitivity: float         # data-sheet (nominal) calibration, in the conventions above
+    offset: float
+    to_si: Convert             # raw -> SI with a calibration (sensitivity, offset)
+    to_raw: Convert            # SI -> raw: what the card reads of a true value
+    ni_channel: Callable[[Any], None]  # adds its DAQmx channel to an nidaqmx task
+    sim: SimChain
+    ni_counter: bool = False   # False: a channel of the shared analog-input task; True: a
+                               # counter task of its own on the analog-input sample clock
+
+
+def _load_cell(cfg: RigConfig) -> list[Sensor]:
+    lc = cfg.channels.load_cell
+    return [Sensor(
+        "load_cell", "load_cell_ratio", "V/V", "load-cell bridge output, raw",
+        "force", "N", "force on the key top from the load cell (calibration in metadata)",
+        loadcell.nominal_sensitivity(lc), 0.0, loadcell.to_newtons, loadcell.to_ratio,
+        functools.partial(loadcell.add_ni_channel, cfg=lc),
+        SimChain(lambda ch: ch["force"], noise=cfg.sim.load_cell_noise_n,
+                 spread=cfg.sim.sensor_spread, offset_sd=0.02e-3,
+                 filter_hz=cfg.sim.load_cell_filter_hz))]
+
+
+def _strain_gauge(cfg: RigConfig) -> list[Sensor]:
+    g = cfg.channels.strain_gauge
+    if not g.enabled:
+        return []
+    wires = {"lead_wire_ohm": g.lead_wire_resistance_ohm, "gauge_ohm": g.nominal_resistance_ohm}
+    return [Sensor(
+        "strain_gauge", "strain_ratio", "V/V", "strain-gauge quarter bridge output, raw",
+        "shank_strain", "m/m", "hammer-shank strain at the gauge, + = tension",
+        g.gage_factor, 0.0, functools.partial(strain.to_strain, **wires),
+        functools.partial(strain.to_ratio, **wires),
+        functools.partial(strain.add_ni_channel, cfg=g),
+        SimChain(lambda ch: ch.get("shank_strain"), noise=cfg.sim.strain_noise,
+                 spread=cfg.sim.sensor_spread, offset_sd=0.1e-3,
+                 needs="the flexible_shank effect (or set channels.strain_gauge.enabled: "
+                       "false)"))]
+
+
+def _encoders(cfg: RigConfig) -> list[Sensor]:
+    """Encoder angles are the record's offset (the body's angle at count 0, i.e. at the
+    acquisition start, in the model's ground frame; nominal: channels.encoders.<name>.
+    initial_value, 0 by default) plus the counted motion."""
+    out = []
+    for n, enc in cfg.channels.encoders.items():
+        start = ("motion from the pose at the acquisition start" if enc.initial_value == 0
+                 else f"{enc.initial_value:g} {enc.units} at the acquisition start + motion")
+        if enc.kind == "angular":
+            true = f"{enc.body}_angle"
+        elif enc.body == "key":
+            true = "key_dip"
+        else:
+            true = ""
+
+        def truth(ch: Mapping[str, np.ndarray], name: str = n, key: str = true) -> np.ndarray:
+            if not key:
+                raise InputError(f"channels.encoders.{name}: the simulated rig measures "
+                                 f"linear motion only on the key (key dip)")
+            return ch[key]
+
+        out.append(Sensor(
+            n, f"{n}_counts", "counts",
+            f"{n} encoder counts (x4) since the acquisition start, on the {enc.body}",
+            enc.channel_name, enc.units,
+            f"{enc.body} from the {n} encoder: calibration offset + counted motion "
+            f"(nominal: {start})",
+            enc.sign * enc.si_per_count, enc.initial_value, encoders.to_si, encoders.to_counts,
+            functools.partial(encoders.add_ni_channel, enc=enc, name=n),
+            # mounting (eccentricity, cosine error) makes the true scale differ slightly
+            SimChain(truth, spread=0.1 * cfg.sim.sensor_spread, counts_from_start=True),
+            ni_counter=True))
+    return out
+
+
+# The rig's sensors, in the order of the card rows' columns: each entry gives the sensors
+# of one kind that a rig configuration has (none when it is not fitted).
+SENSORS: list[Callable[[RigConfig], list[Sensor]]] = [_load_cell, _strain_gauge, _encoders]
+FEEDBACK = "load_cell_ratio"  # the raw column the loop's force feedback reads
+SAMPLE = "sample"             # the card rows' first column: the sample counter
+
+
+def sensors(cfg: RigConfig) -> list[Sensor]:
+    """Every sensor of the rig, in the order of the card rows' columns (after ``sample``)."""
+    out = [s for kind in SENSORS for s in kind(cfg)]
+    names = [SAMPLE, "time"] + [n for s in out for n in (s.raw, s.channel)]
+    if len(set(names)) != len(names):
+        raise InputError(f"channels: two sensors write the same channel: {names}")
+    if len({s.name for s in out}) != len(out):
+        raise InputError(f"channels: two sensors have the same name: {[s.name for s in out]}")
+    return out
+
+
 def nominal(cfg: RigConfig) -> dict[str, CalRecord]:
     """Data-sheet calibrations of every sensor of the rig."""
-    ch = cfg.channels
-    recs = {"load_cell": CalRecord("load_cell", True, loadcell.nominal_sensitivity(ch.load_cell),
-                                   0.0, "V/V", "N")}
-    if ch.strain_gauge.enabled:
-        recs["strain_gauge"] = CalRecord("strain_gauge", True, ch.strain_gauge.gage_factor, 0.0,
-                                         "V/V", "m/m")
-    for name, enc in ch.encoders.items():
-        recs[name] = CalRecord(name, True, enc.sign * enc.si_per_count, enc.initial_value,
-                               "counts", enc.units)
-    return recs
-
-
-RAW_UNITS = {"sample": "1", "load_cell_ratio": "V/V", "strain_ratio": "V/V"}
+    return {s.name: CalRecord(s.name, True, s.sensitivity, s.offset, s.raw_units, s.units)
+            for s in sensors(cfg)}
 
 
 def raw_names(cfg: RigConfig) -> list[str]:
     """Raw channel names in the order of a block's columns."""
-    names = ["sample", "load_cell_ratio"]
-    if cfg.channels.strain_gauge.enabled:
-        names.append("strain_ratio")
-    names += [f"{n}_counts" for n in cfg.channels.encoders]
-    return names
+    return [SAMPLE] + [s.raw for s in sensors(cfg)]
+
+
+def column(cfg: RigConfig, raw: str) -> int:
+    """The card rows' column holding raw channel ``raw``."""
+    return raw_names(cfg).index(raw)
 
 
 def channel_units(cfg: RigConfig) -> dict[str, str]:
     """Units of every channel a measured run stores (raw and calibrated)."""
-    u = {"time": "s", **RAW_UNITS, "force": "N"}
-    if cfg.channels.strain_gauge.enabled:
-        u["shank_strain"] = "m/m"
-    for n, enc in cfg.channels.encoders.items():
-        u[f"{n}_counts"] = "counts"
-        u[enc.channel_name] = enc.units
-    return {k: v for k, v in u.items() if k != "strain_ratio" or "shank_strain" in u}
+    table = sensors(cfg)
+    return {"time": "s", SAMPLE: "1", **{s.raw: s.raw_units for s in table},
+            **{s.channel: s.units for s in table}}
 
 
 # the 500 Hz loop's records in a run file (section "commands")
@@ -96,49 +215,29 @@ COMMAND_DOCS = {
 }
 CHANNEL_DOCS = {
     "time": "trial time (0 = profile start), sample / rate",
-    "sample": "sample counter since the acquisition started (proves no gap)",
-    "load_cell_ratio": "load-cell bridge output, raw",
-    "strain_ratio": "strain-gauge quarter bridge output, raw",
-    "force": "force on the key top from the load cell (calibration in metadata)",
-    "shank_strain": "hammer-shank strain at the gauge, + = tension",
+    SAMPLE: "sample counter since the acquisition started (proves no gap)",
 }
 
 
 def channel_docs(cfg: RigConfig) -> dict[str, str]:
-    """Description of every channel a measured (or synthetic) run stores. Encoder angles are
-    the record's offset (the body's angle at count 0, i.e. at the acquisition start, in the
-    model's ground frame; nominal: channels.encoders.<name>.initial_value, 0 by default)
-    plus the counted motion."""
-    docs = dict(CHANNEL_DOCS)
-    for n, enc in cfg.channels.encoders.items():
-        docs[f"{n}_counts"] = f"{n} encoder counts (x4) since the acquisition start, on the " \
-                              f"{enc.body}"
-        start = ("motion from the pose at the acquisition start" if enc.initial_value == 0
-                 else f"{enc.initial_value:g} {enc.units} at the acquisition start + motion")
-        docs[enc.channel_name] = (f"{enc.body} from the {n} encoder: calibration offset + "
-                                  f"counted motion (nominal: {start})")
-    return docs
+    """Description of every channel a measured (or synthetic) run stores."""
+    table = sensors(cfg)
+    return {**CHANNEL_DOCS, **{s.raw: s.raw_doc for s in table},
+            **{s.channel: s.doc for s in table}}
 
 
 def convert(block: np.ndarray, cfg: RigConfig, cals: dict[str, CalRecord],
             t0_sample: int = 0) -> dict[str, np.ndarray]:
     """A raw block (rows of ``raw_names``) -> named raw and SI channels, with time (s)."""
-    names = raw_names(cfg)
+    table = sensors(cfg)
+    names = [SAMPLE] + [s.raw for s in table]
     if block.ndim != 2 or block.shape[1] != len(names):
         raise InputError(f"block: expected rows of {len(names)} columns {names}, got "
                          f"shape {block.shape}")
     cols = {n: block[:, i] for i, n in enumerate(names)}
     out: dict[str, np.ndarray] = {
-        "time": (cols["sample"] - t0_sample) / cfg.rates.acquisition_hz, **cols}
-    lc = cals["load_cell"]
-    out["force"] = loadcell.to_newtons(cols["load_cell_ratio"], lc.sensitivity, lc.offset)
-    if "strain_ratio" in cols:
-        sg = cals["strain_gauge"]
-        g = cfg.channels.strain_gauge
-        out["shank_strain"] = strain.to_strain(cols["strain_ratio"], sg.sensitivity, sg.offset,
-                                               g.lead_wire_resistance_ohm,
-                                               g.nominal_resistance_ohm)
-    for n, enc in cfg.channels.encoders.items():
-        rec = cals[n]
-        out[enc.channel_name] = encoders.to_si(cols[f"{n}_counts"], rec.sensitivity, rec.offset)
+        "time": (cols[SAMPLE] - t0_sample) / cfg.rates.acquisition_hz, **cols}
+    for s in table:
+        rec = cals[s.name]
+        out[s.channel] = s.to_si(cols[s.raw], rec.sensitivity, rec.offset)
     return out

@@ -19,6 +19,11 @@ def to_si(counts: np.ndarray | float, si_per_count: float, offset: float, sign: 
     return offset + sign * np.asarray(counts, dtype=float) * si_per_count
 
 
+def to_counts(value: np.ndarray | float, si_per_count: float, offset: float) -> Any:
+    """rad or m -> whole counts from ``offset`` (the value at count 0): what the counter reads."""
+    return np.floor((np.asarray(value, dtype=float) - offset) / si_per_count + 0.5)
+
+
 def add_ni_channel(task: Any, enc: Encoder, name: str) -> None:
     """Add the encoder to a counter task, counting ticks with x4 decoding."""
     from nidaqmx.constants import AngleUnits, EncoderType, LengthUnits

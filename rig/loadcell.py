@@ -25,6 +25,11 @@ def to_newtons(ratio: np.ndarray | float, sensitivity: float, offset: float) -> 
     return (np.asarray(ratio, dtype=float) - offset) / sensitivity
 
 
+def to_ratio(force_n: np.ndarray | float, sensitivity: float, offset: float) -> Any:
+    """Force on the key top (N) -> bridge ratio (V/V): the inverse of ``to_newtons``."""
+    return offset + sensitivity * np.asarray(force_n, dtype=float)
+
+
 def add_ni_channel(task: Any, cfg: LoadCell, name: str = "load_cell") -> None:
     """Add the load cell to an nidaqmx task as a full-bridge V/V channel."""
     add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,

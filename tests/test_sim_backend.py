@@ -17,8 +17,8 @@ def test_sensor_models_differ_from_nominal_and_are_seeded() -> None:
     a, b = SensorSet.from_config(cfg), SensorSet.from_config(cfg)
     assert a.truth() == b.truth()
     nom = loadcell.nominal_sensitivity(cfg.channels.load_cell)
-    assert a.load_cell.sensitivity != nom
-    assert abs(a.load_cell.sensitivity / nom - 1) < 0.1
+    assert a["load_cell"].sensitivity != nom
+    assert abs(a["load_cell"].sensitivity / nom - 1) < 0.1
     assert SensorSet.from_config(cfg, seed=99).truth() != a.truth()
 
 
@@ -26,7 +26,7 @@ def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
     # the built-in rig counts the 100 Hz filter in the drive model; set here, the load cell
     # filters on top (what rig synth --load-cell-filter does)
     cfg = config.builtin_sim(sim={"load_cell_filter_hz": 100.0})
-    lc = SensorSet.from_config(cfg).load_cell
+    lc = SensorSet.from_config(cfg)["load_cell"]
     f = np.r_[np.zeros(200), np.full(4000, 20.0)]
     n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
     settled = n[2000:]
@@ -38,8 +38,8 @@ def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
 
 
 def test_the_built_in_load_cell_does_not_filter_again() -> None:
-    lc = SensorSet.from_config(config.builtin_sim(sim={"load_cell_noise_n": 0.0})).load_cell
-    assert lc.filter_hz is None
+    lc = SensorSet.from_config(config.builtin_sim(sim={"load_cell_noise_n": 0.0}))["load_cell"]
+    assert lc.spec.sim.filter_hz is None
     f = np.r_[np.zeros(200), np.full(50, 20.0)]
     n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
     assert n == pytest.approx(f, abs=1e-9)  # the force as the drive model gives it
@@ -55,12 +55,12 @@ def test_strain_formula_round_trip_and_size() -> None:
 
 def test_encoders_quantise_at_their_resolution() -> None:
     sensors = SensorSet.from_config(config.builtin_sim())
-    hammer = sensors.encoders["hammer"]
-    step = abs(hammer.si_per_count)
-    c = hammer.counts(np.array([0.0, 0.4 * step, 0.6 * step, 1.0]))
+    hammer = sensors["hammer"]
+    step = abs(hammer.sensitivity)
+    c = hammer.measure(np.array([0.0, 0.4 * step, 0.6 * step, 1.0]))
     assert list(c[:3]) == [0, 0, 1]
-    assert c[3] == pytest.approx(1.0 / hammer.si_per_count, abs=0.5)
-    assert abs(hammer.nominal_si_per_count) == pytest.approx(2 * np.pi / 163840)
+    assert c[3] == pytest.approx(1.0 / hammer.sensitivity, abs=0.5)
+    assert abs(hammer.spec.sensitivity) == pytest.approx(2 * np.pi / 163840)
 
 
 def test_fifo_detects_overwritten_samples() -> None:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, encoders, loadcell, profiles, runfile, strain
+from rig import calrecords, profiles, runfile
 from rig import config as rig_config
 from rig.config import RigConfig
 from rig.errors import InputError
@@ -32,7 +32,7 @@ from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet
 
 COMMAND_UNITS = {k: calrecords.COMMAND_UNITS[k] for k in ("time", "demand")}
-HARDWARE_FILTER_HZ = 100.0  # the SCXI-1520's filter (sensors.load_cell.hardware_lowpass_hz)
+HARDWARE_FILTER_HZ = 100.0  # the SCXI-1520's filter
 
 
 def default_rig(key_rotary: bool = True) -> RigConfig:
@@ -96,38 +96,22 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
         "load_cell_filter_hz": (cfg.sim.load_cell_filter_hz or HARDWARE_FILTER_HZ)
         if load_cell_filter else None})
     sensors = SensorSet.from_config(cfg.model_copy(update={"sim": sim}), seed=rng_seed)
-    lc = sensors.load_cell
     # the load cell reads the drive's force where the arm presses; effects of the truth that
     # transform the input (a lag, ...) act between it and the key
-    ratio = lc.measure(np.interp(res.time, ts, force))
-    ch: dict[str, np.ndarray] = {"time": res.time.copy(), "load_cell_ratio": ratio,
-                                 "force": loadcell.to_newtons(ratio, lc.sensitivity, lc.offset)}
-    units = {"time": "s", "load_cell_ratio": "V/V", "force": "N"}
-    sgm = sensors.strain_gauge
-    if sgm is not None and "shank_strain" in res.channels:
-        r = sgm.measure(res.channels["shank_strain"])
-        ch["strain_ratio"] = r
-        g = cfg.channels.strain_gauge
-        ch["shank_strain"] = strain.to_strain(r, sgm.gage_factor, sgm.offset,
-                                              g.lead_wire_resistance_ohm,
-                                              g.nominal_resistance_ohm)
-        units.update(strain_ratio="V/V", shank_strain="m/m")
-    for name, enc in cfg.channels.encoders.items():
-        if enc.kind == "linear":
-            true = res.channels["key_dip"] if enc.body == "key" else None
-            if true is None:
-                raise InputError(f"channels.encoders.{name}: synth measures linear motion "
-                                 f"only on the key")
-            rest = 0.0
-        else:
-            true = res.channels[f"{enc.body}_angle"]
-            rest = float(true[0])
-        em = sensors.encoders[name]
-        counts = em.counts(true - rest)
-        ch[f"{name}_counts"] = counts
-        ch[enc.channel_name] = encoders.to_si(counts, em.si_per_count, rest)
-        units[f"{name}_counts"] = "counts"
-        units[enc.channel_name] = enc.units
+    true_ch = {**res.channels, "force": np.interp(res.time, ts, force)}
+    ch: dict[str, np.ndarray] = {"time": res.time.copy()}
+    units = {"time": "s"}
+    for s in calrecords.sensors(cfg):
+        true = s.sim.truth(true_ch)
+        if true is None:  # the truth lacks it (a rigid shank has no strain)
+            continue
+        m = sensors[s.name]
+        if s.sim.counts_from_start:
+            m.offset = float(true[0])
+        raw = m.measure(true)
+        # stored calibrated with the sensors' true calibration
+        ch[s.raw], ch[s.channel] = raw, s.to_si(raw, m.sensitivity, m.offset)
+        units[s.raw], units[s.channel] = s.raw_units, s.units
     return SynthTrial(res, ch, units, {"time": tc, "demand": dem})
 
 

@@ -10,10 +10,11 @@ ticks missed while the software was late are counted from
 ``in_stream.total_samp_per_chan_acquired``. The pacing task starts on the
 acquisition card's start trigger (RTSI) so tick n and sample 4n coincide.
 
-Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): one
-continuous AI task with the load-cell and strain bridges (V/V) at 2 kHz, and
-one counter task per encoder (ticks, x4) clocked from the AI sample clock;
-counters start before the AI task. Buffer overwrite / overflow errors and a
+Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): the sensors
+of ``rig.calrecords.sensors``, each set up by its own ``ni_channel``: one
+continuous AI task with the analog ones (the load-cell and strain bridges, V/V)
+at 2 kHz, and one counter task per counter (the encoders: ticks, x4) clocked
+from the AI sample clock; counters start before the AI task. Buffer overwrite / overflow errors and a
 full buffer stop the run.
 """
 
@@ -32,7 +33,7 @@ import numpy as np
 from nidaqmx.constants import AcquisitionType, AOIdleOutputBehavior, OverwriteMode
 from nidaqmx.error_codes import DAQmxErrors
 
-from rig import encoders, loadcell, strain
+from rig import calrecords, loadcell, strain
 from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 
@@ -155,21 +156,25 @@ class NiReader(Reader):
         buf = int(cfg.acquisition.buffer_s * rate)
         self.fb = shared_memory.SharedMemory(name=spec["feedback"]) if spec.get("feedback") \
             else None
+        self.names = calrecords.raw_names(cfg)
+        table = calrecords.sensors(cfg)
         self.ai = new_task("rig-bridges")
-        loadcell.add_ni_channel(self.ai, ch.load_cell)
-        self.n_ai = 1
-        if ch.strain_gauge.enabled:
-            strain.add_ni_channel(self.ai, ch.strain_gauge)
-            self.n_ai = 2
+        self.ai_names = [s.raw for s in table if not s.ni_counter]
+        for s in table:
+            if not s.ni_counter:
+                s.ni_channel(self.ai)
         self.ai.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
                                            samps_per_chan=buf)
         self.ai.in_stream.overwrite = OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES
         self.ai_reader = nidaqmx.stream_readers.AnalogMultiChannelReader(self.ai.in_stream)
         self.ci: list[Any] = []
+        self.ci_names = [s.raw for s in table if s.ni_counter]
         self.ci_readers: list[Any] = []
-        for name, enc in ch.encoders.items():
-            task = new_task(f"rig-encoder-{name}")
-            encoders.add_ni_channel(task, enc, name)
+        for s in table:
+            if not s.ni_counter:
+                continue
+            task = new_task(f"rig-encoder-{s.name}")
+            s.ni_channel(task)
             task.timing.cfg_samp_clk_timing(rate, source=ch.ai_sample_clock,
                                             sample_mode=AcquisitionType.CONTINUOUS,
                                             samps_per_chan=buf)
@@ -181,7 +186,7 @@ class NiReader(Reader):
     def calibrate_bridges(self) -> None:
         """Offset nulling and shunt calibration of both bridges (key unloaded)."""
         loadcell.ni_calibrate(self.ai, self.cfg.channels.load_cell)
-        if self.n_ai == 2:
+        if "strain_ratio" in self.ai_names:
             strain.ni_calibrate(self.ai, self.cfg.channels.strain_gauge)
 
     def start(self) -> None:
@@ -197,8 +202,8 @@ class NiReader(Reader):
                 raise DaqFault(f"acquisition buffer full ({n} samples): the next samples would "
                                f"be lost")
             if n == 0:
-                return np.empty((0, 2 + (self.n_ai - 1) + len(self.ci)))
-            ai = np.empty((self.n_ai, n))
+                return np.empty((0, len(self.names)))
+            ai = np.empty((len(self.ai_names), n))
             self.ai_reader.read_many_sample(ai, number_of_samples_per_channel=n, timeout=1.0)
             counts = np.empty((len(self.ci), n))
             for j, r in enumerate(self.ci_readers):
@@ -211,9 +216,11 @@ class NiReader(Reader):
                                f"{_error_name(exc.error_code)}): samples were lost") from None
             raise DaqFault(f"acquisition read failed (DAQmx {_error_name(exc.error_code)}): "
                            f"{exc}") from None
-        sample = self.count + np.arange(n, dtype=float)
+        cols = {calrecords.SAMPLE: self.count + np.arange(n, dtype=float),
+                **dict(zip(self.ai_names, ai, strict=True)),
+                **dict(zip(self.ci_names, counts, strict=True))}
         self.count += n
-        return np.column_stack([sample, ai.T, counts.T])
+        return np.column_stack([cols[name] for name in self.names])
 
     def publish_feedback(self, sample: int, ratio: float) -> None:
         if self.fb is not None:

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from rig import calrecords
 from rig import strain as strain_mod
 from rig.config import RigConfig
 from rig.daq import Bench, Live, bridge_range, check_bridge
@@ -41,9 +42,9 @@ class SimBench(Bench):
         for i0 in range(0, n, max(1, int(self.rate_hz / 10))):
             m = min(n - i0, max(1, int(self.rate_hz / 10)))
             if sensor == "load_cell":
-                r = self.sensors.load_cell.measure(np.full(m, self.force_n))
+                r = self.sensors["load_cell"].measure(np.full(m, self.force_n))
             else:
-                sg = self.sensors.strain_gauge
+                sg = self.sensors.get("strain_gauge")
                 if sg is None:
                     raise InputError("channels.strain_gauge.enabled is false on this rig")
                 g = self.cfg.channels.strain_gauge
@@ -79,7 +80,7 @@ class SimBench(Bench):
         drive = DriveModel(1.0 / self.rate_hz, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
         force = np.concatenate([np.maximum(drive.step(float(u), spc), 0.0)
                                 for u in np.asarray(demand_n, float)])
-        lc = self.sensors.load_cell
+        lc = self.sensors["load_cell"]
         lc.reset(0.0)
         return np.clip(lc.measure(force), -bridge_range(cfg, "load_cell"),
                        bridge_range(cfg, "load_cell"))
@@ -92,5 +93,6 @@ class SimBench(Bench):
         rig = self._rig
         vpn = self.cfg.drive_scaling.volts_per_newton
         rows = np.vstack([rig.cycle(float(f) * vpn) for f in np.asarray(force_n, float)])
-        first = 2 + int(rig.strain_on)
-        return {name: rows[:, first + j] for j, name in enumerate(self.cfg.channels.encoders)}
+        raw = {s.name: s.raw for s in rig.table}
+        return {name: rows[:, calrecords.column(self.cfg, raw[name])]
+                for name in self.cfg.channels.encoders}

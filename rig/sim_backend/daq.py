@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import pacing
+from rig import calrecords, pacing
 from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
@@ -41,8 +41,8 @@ BUILD_NOTICE_S = 3.0  # s: a plant still building its model after this is report
 
 
 def row_width(config: RigConfig) -> int:
-    """Columns of a simulated card row: sample, load cell, (strain), one per encoder."""
-    return 2 + int(config.channels.strain_gauge.enabled) + len(config.channels.encoders)
+    """Columns of a simulated card row: those of ``rig.calrecords.raw_names``."""
+    return len(calrecords.raw_names(config))
 
 
 class SimDaq(Daq):

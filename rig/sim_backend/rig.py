@@ -3,9 +3,10 @@
 Each ``cycle(volts)`` holds the analog output for one control period (2 ms):
 the drive model turns the demand into the force on the key top, the action
 model is advanced under that force, and the sensors produce the rows the
-cards would buffer at 2 kHz: [sample, load_cell_ratio, (strain_ratio),
-counts per encoder]. The drive only pushes while it is enabled and not
-faulted (see ``DriveState``, shared with the simulated serial drive).
+cards would buffer at 2 kHz, in the columns of ``rig.calrecords.raw_names``
+(each sensor's true value from its ``SimChain.truth``). The drive only pushes
+while it is enabled and not faulted (see ``DriveState``, shared with the
+simulated serial drive).
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from rig import calrecords
 from rig.config import RigConfig
 from rig.errors import InputError
-from rig.model.action import ANGLE_CHANNELS, ActionModel
+from rig.model.action import ActionModel
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.sensors import SensorSet
@@ -32,55 +34,45 @@ class SimRig:
         rate = config.rates.acquisition_hz
         self.n_per_cycle = config.rates.samples_per_cycle
         self.dt_sample = 1.0 / rate
-        for name, enc in config.channels.encoders.items():
-            if enc.kind == "linear" and enc.body != "key":
-                raise InputError(f"channels.encoders.{name}: the simulated rig measures linear "
-                                 f"motion only on the key (key dip)")
         self.model = model or ActionModel(effects=config.sim.effects, output_rate=rate)
         if abs(self.model.output_rate - rate) > 1e-9:
             raise InputError(f"model: expected output_rate {rate} Hz, got {self.model.output_rate}")
-        self.strain_on = config.channels.strain_gauge.enabled
-        if self.strain_on and "flexible_shank" not in self.model.effect_names:
-            raise InputError("sim.effects: the strain gauge needs the flexible_shank effect "
-                             "(or set channels.strain_gauge.enabled: false)")
+        self.table = calrecords.sensors(config)
+        self.sensors = SensorSet.from_config(config)
+        rest = self.model.rest_state()
+        at_rest = self.model.channels(np.zeros(1), rest[None, :], np.zeros(1))
+        for s in self.table:
+            true = s.sim.truth(at_rest)
+            if true is None:
+                raise InputError(f"sim.effects: the {s.name.replace('_', ' ')} needs "
+                                 f"{s.sim.needs}")
+            if s.sim.counts_from_start:  # count 0 at the rest pose
+                self.sensors[s.name].offset = float(true[0])
         self.drive_state: DriveStatus = drive_state or DriveState(enabled=True)
         self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
                                 config.sim.process_time_unit_s, self.model.params)
-        self.sensors = SensorSet.from_config(config)
         self.volts_per_newton = config.drive_scaling.volts_per_newton
-        rest = self.model.rest_state()
         warm = self.model.stepper()  # compile/warm the numba paths before the clock starts
         for j in range(1, 4):
             c = warm.advance(j * 2e-3, 0.0, 0.0)
             self.model.channels(c.time, c.states, c.force)
         self.stepper = self.model.stepper(keep_history=False)  # flat memory over long runs
-        self._rest = {n: float(rest[i]) for n, i in ANGLE_CHANNELS.items()}
         self.sample = 0
         self._pending = self._physical(np.zeros(1), rest[None, :], np.zeros(1))
         self.force_now = 0.0
-        self.last_ratio = float(self.sensors.load_cell.offset)
-        self.width = 2 + int(self.strain_on) + len(config.channels.encoders)
+        self.width = 1 + len(self.table)
+        self.feedback = calrecords.column(config, calrecords.FEEDBACK)
+        fb = next(s for s in self.table if s.raw == calrecords.FEEDBACK)
+        self.last_ratio = float(self.sensors[fb.name].offset)  # the reading at zero force
 
     def truth(self) -> dict[str, dict[str, Any]]:
-        """True sensor parameters; encoder offsets are the bodies' rest values (rad or m)."""
-        t = self.sensors.truth()
-        for name, enc in self.config.channels.encoders.items():
-            t[name]["offset"] = 0.0 if enc.kind == "linear" else self._rest[f"{enc.body}_angle"]
-        return t
+        """True sensor calibrations; encoder offsets are the bodies' rest values (rad or m)."""
+        return self.sensors.truth()
 
     def _physical(self, time: np.ndarray, states: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """True values the sensors see: force, (shank strain), encoder motions from rest."""
+        """True values the sensors see, one column per sensor (the table's order)."""
         ch = self.model.channels(time, states, force)
-        cols = [force]
-        if self.strain_on:
-            cols.append(ch["shank_strain"])
-        for enc in self.config.channels.encoders.values():
-            if enc.kind == "linear":
-                cols.append(ch["key_dip"])
-            else:
-                key = f"{enc.body}_angle"
-                cols.append(ch[key] - self._rest[key])
-        return np.column_stack(cols)
+        return np.column_stack([s.sim.truth(ch) for s in self.table])
 
     def cycle(self, volts: float) -> np.ndarray:
         """Hold ``volts`` for one control period; the card rows of that period."""
@@ -102,15 +94,8 @@ class SimRig:
         m = phys.shape[0]
         rows = np.empty((m, self.width))
         rows[:, 0] = self.sample + np.arange(m)
-        rows[:, 1] = self.sensors.load_cell.measure(phys[:, 0])
-        col = 2
-        if self.strain_on:
-            assert self.sensors.strain_gauge is not None
-            rows[:, col] = self.sensors.strain_gauge.measure(phys[:, col - 1])
-            col += 1
-        for name in self.config.channels.encoders:
-            rows[:, col] = self.sensors.encoders[name].counts(phys[:, col - 1])
-            col += 1
+        for j, s in enumerate(self.table):
+            rows[:, 1 + j] = self.sensors[s.name].measure(phys[:, j])
         self.sample += m
-        self.last_ratio = float(rows[-1, 1])
+        self.last_ratio = float(rows[-1, self.feedback])
         return rows

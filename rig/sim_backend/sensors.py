@@ -1,13 +1,15 @@
 """Sensor models for the simulated rig, with seeded true sensitivities and offsets.
 
-Each model turns a true physical value into what the card reads (V/V or
-counts) using its *true* parameters, which differ from the data-sheet
-(nominal) ones by a seeded spread; ``truth()`` returns them so calibration
-can check that it recovers them, and `rig synth` can reuse the models.
+One model per entry of the sensor table (``rig.calrecords.sensors``), built from the
+entry's ``SimChain``: a true value is (optionally) low-pass filtered, gets its noise and
+becomes what the card reads (V/V or counts) through the sensor's own ``to_raw`` with
+its *true* calibration, which differs from the data-sheet (nominal) one by a seeded
+spread; ``truth()`` returns the true calibrations so calibration can check that it
+recovers them. The simulated rig, its calibration bench and `rig synth` use these models.
 
     sensors = SensorSet.from_config(cfg, seed=4)
-    ratio = sensors.load_cell.measure(force_n)          # V/V, filtered, noisy
-    counts = sensors.encoders["hammer"].counts(delta)   # integer counts
+    ratio = sensors["load_cell"].measure(force_n)       # V/V, noisy (filtered if set)
+    counts = sensors["hammer"].measure(angle)           # integer counts from the offset
 """
 
 from __future__ import annotations
@@ -18,109 +20,68 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rig import loadcell, strain
+from rig.calrecords import Sensor, sensors
 from rig.config import RigConfig
 
 
 @dataclass
-class LoadCellModel:
-    """Full-bridge load cell + noise, and a 4-pole Butterworth filter when ``filter_hz``
-    is set. The simulated rig leaves it None: its drive model already contains the
-    SCXI-1520's 100 Hz filter (rig.sim_backend.drive_model), so it is counted once."""
+class SensorModel:
+    """One sensor's simulated chain with its true calibration (``spec.sim`` says how).
 
-    sensitivity: float          # true (V/V)/N
-    offset: float               # true V/V at zero force
-    noise_n: float              # 1-sigma noise, N equivalent
-    filter_hz: float | None     # Hz; None: no filter in the sensor chain
+    The load cell's 4-pole Butterworth filter (``sim.load_cell_filter_hz``) is off on the
+    simulated rig: its drive model already contains the SCXI-1520's 100 Hz filter
+    (rig.sim_backend.drive_model), so it is counted once."""
+
+    spec: Sensor
+    sensitivity: float          # true, in the calibration-record conventions
+    offset: float               # true; a counter's: the true value at count 0
     rate_hz: float
     rng: np.random.Generator
     _sos: np.ndarray | None = field(init=False, repr=False)
     _zi: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._sos = None if self.filter_hz is None else signal.butter(
-            4, self.filter_hz, fs=self.rate_hz, output="sos")
+        hz = self.spec.sim.filter_hz
+        self._sos = None if hz is None else signal.butter(4, hz, fs=self.rate_hz, output="sos")
         self.reset()
 
-    def reset(self, force_n: float = 0.0) -> None:
-        """Filter state settled at a constant force."""
-        self._zi = None if self._sos is None else signal.sosfilt_zi(self._sos) * force_n
+    def reset(self, value: float = 0.0) -> None:
+        """Filter state settled at a constant true value."""
+        self._zi = None if self._sos is None else signal.sosfilt_zi(self._sos) * value
 
-    def measure(self, force_n: np.ndarray) -> np.ndarray:
-        """Bridge ratio (V/V) read for true forces (N) sampled at rate_hz."""
-        filtered = np.asarray(force_n, float)
+    def measure(self, true: np.ndarray) -> np.ndarray:
+        """The readings (raw units) of true values sampled at rate_hz."""
+        x = np.asarray(true, float)
         if self._sos is not None:
-            filtered, self._zi = signal.sosfilt(self._sos, filtered, zi=self._zi)
-        noisy = filtered + self.rng.normal(0.0, self.noise_n, filtered.shape)
-        return self.offset + self.sensitivity * noisy
-
-
-@dataclass
-class StrainGaugeModel:
-    """Quarter-bridge type I gauge (350 ohm) with a true gage factor and bridge offset."""
-
-    gage_factor: float
-    offset: float               # unstrained bridge ratio, V/V
-    noise: float                # 1-sigma, m/m equivalent
-    lead_wire_ohm: float
-    gauge_ohm: float
-    rng: np.random.Generator
-
-    def measure(self, strain_mm: np.ndarray) -> np.ndarray:
-        e = np.asarray(strain_mm, float)
-        e = e + self.rng.normal(0.0, self.noise, e.shape)
-        return strain.to_ratio(e, self.gage_factor, self.offset, self.lead_wire_ohm,
-                               self.gauge_ohm)
-
-
-@dataclass
-class EncoderModel:
-    """Quadrature encoder: counts of the true motion, quantised at the scale's resolution."""
-
-    si_per_count: float         # true rad or m per count, signed as the counter counts
-    nominal_si_per_count: float
-
-    def counts(self, delta: np.ndarray) -> np.ndarray:
-        """Whole counts for motion delta (rad or m) from the pose at count 0."""
-        return np.floor(np.asarray(delta, float) / self.si_per_count + 0.5)
+            x, self._zi = signal.sosfilt(self._sos, x, zi=self._zi)
+        if self.spec.sim.noise is not None:
+            x = x + self.rng.normal(0.0, self.spec.sim.noise, x.shape)
+        return np.asarray(self.spec.to_raw(x, self.sensitivity, self.offset), float)
 
 
 @dataclass
 class SensorSet:
-    load_cell: LoadCellModel
-    strain_gauge: StrainGaugeModel | None
-    encoders: dict[str, EncoderModel]
+    """The rig's sensor models by sensor name, in the card rows' column order."""
+
+    models: dict[str, SensorModel]
+
+    def __getitem__(self, name: str) -> SensorModel:
+        return self.models[name]
+
+    def get(self, name: str) -> SensorModel | None:
+        return self.models.get(name)
 
     @classmethod
     def from_config(cls, cfg: RigConfig, seed: int | None = None) -> SensorSet:
         rng = np.random.default_rng(cfg.sim.seed if seed is None else seed)
-        spread = cfg.sim.sensor_spread
-        ch = cfg.channels
-        lc_nom = loadcell.nominal_sensitivity(ch.load_cell)
-        lc = LoadCellModel(lc_nom * (1 + spread * rng.standard_normal()),
-                           0.02e-3 * rng.standard_normal(), cfg.sim.load_cell_noise_n,
-                           cfg.sim.load_cell_filter_hz, cfg.rates.acquisition_hz, rng)
-        sg = None
-        if ch.strain_gauge.enabled:
-            g = ch.strain_gauge
-            sg = StrainGaugeModel(g.gage_factor * (1 + spread * rng.standard_normal()),
-                                  0.1e-3 * rng.standard_normal(), cfg.sim.strain_noise,
-                                  g.lead_wire_resistance_ohm, g.nominal_resistance_ohm, rng)
-        encs = {}
-        for name, enc in ch.encoders.items():
-            # mounting (eccentricity, cosine error) makes the true scale differ slightly
-            true = enc.si_per_count * (1 + 0.1 * spread * rng.standard_normal())
-            encs[name] = EncoderModel(enc.sign * true, enc.sign * enc.si_per_count)
-        return cls(lc, sg, encs)
+        models = {}
+        for s in sensors(cfg):
+            sens = s.sensitivity * (1 + s.sim.spread * rng.standard_normal())
+            off = 0.0 if s.sim.offset_sd is None else s.sim.offset_sd * rng.standard_normal()
+            models[s.name] = SensorModel(s, sens, off, cfg.rates.acquisition_hz, rng)
+        return cls(models)
 
     def truth(self) -> dict[str, dict[str, Any]]:
         """True sensitivities and offsets, in the calibration-record conventions."""
-        out: dict[str, dict[str, Any]] = {
-            "load_cell": {"sensitivity": self.load_cell.sensitivity,
-                          "offset": self.load_cell.offset}}
-        if self.strain_gauge is not None:
-            out["strain_gauge"] = {"sensitivity": self.strain_gauge.gage_factor,
-                                   "offset": self.strain_gauge.offset}
-        for n, e in self.encoders.items():
-            out[n] = {"sensitivity": e.si_per_count, "offset": 0.0}
-        return out
+        return {n: {"sensitivity": m.sensitivity, "offset": m.offset}
+                for n, m in self.models.items()}
