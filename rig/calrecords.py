@@ -29,6 +29,7 @@ from rig import encoders, loadcell, strain
 from rig.config import RigConfig
 from rig.errors import InputError
 
+
 @dataclass(frozen=True)
 class CalRecord:
     """One sensor's calibration as used for a run."""

@@ -14,8 +14,8 @@ Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): the sensors
 of ``rig.calrecords.sensors``, each set up by its own ``ni_channel``: one
 continuous AI task with the analog ones (the load-cell and strain bridges, V/V)
 at 2 kHz, and one counter task per counter (the encoders: ticks, x4) clocked
-from the AI sample clock; counters start before the AI task. Buffer overwrite / overflow errors and a
-full buffer stop the run.
+from the AI sample clock; counters start before the AI task. Buffer overwrite /
+overflow errors and a full buffer stop the run.
 """
 
 from __future__ import annotations

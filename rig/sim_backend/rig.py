@@ -72,7 +72,7 @@ class SimRig:
     def _physical(self, time: np.ndarray, states: np.ndarray, force: np.ndarray) -> np.ndarray:
         """True values the sensors see, one column per sensor (the table's order)."""
         ch = self.model.channels(time, states, force)
-        return np.column_stack([s.sim.truth(ch) for s in self.table])
+        return np.column_stack([np.asarray(s.sim.truth(ch), float) for s in self.table])
 
     def cycle(self, volts: float) -> np.ndarray:
         """Hold ``volts`` for one control period; the card rows of that period."""
