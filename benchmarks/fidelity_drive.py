@@ -24,7 +24,7 @@ from rig.config import RigConfig
 from rig.model.fingertip import constant_speed_force
 from rig.params import Parameters
 from rig.sim_backend.drive_model import DriveModel
-from rig.sim_backend.sensors import LoadCellModel
+from rig.sim_backend.sensors import SensorSet
 
 FORTE = Path(__file__).resolve().parents[1] / "profiles" / "forte.yaml"
 SHIFT_S = 0.008
@@ -37,8 +37,9 @@ def recorded_force(demand_n: np.ndarray, cfg: RigConfig) -> tuple[np.ndarray, np
     spc = cfg.rates.samples_per_cycle
     drive = DriveModel(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
     force = np.concatenate([np.maximum(drive.step(float(u), spc), 0.0) for u in demand_n])
-    lc = LoadCellModel(1.0, 0.0, 0.0, cfg.sim.load_cell_filter_hz, rate,
-                       np.random.default_rng(0))
+    quiet = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"load_cell_noise_n": 0.0})})
+    lc = SensorSet.from_config(quiet)["load_cell"]
+    lc.sensitivity, lc.offset = 1.0, 0.0  # in newtons: the chain's filter, no calibration
     return np.arange(1, force.size + 1) / rate, lc.measure(force)
 
 

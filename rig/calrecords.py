@@ -5,7 +5,7 @@ columns (after ``sample``): its raw column and SI channel with units and descrip
 its data-sheet calibration, its raw -> SI conversion, its NI channel set-up and its
 simulated chain (true value -> reading). The NI reader, the simulated rig, the
 acquisition process, `rig synth` and the calibration bench all read it; adding a sensor
-is one entry in ``SENSORS`` (docs/architecture.md, "Add a sensor").
+is one entry in ``SENSOR_TABLE`` (docs/architecture.md, "Add a sensor").
 
 Which calibration applies to each sensor is asked in one place,
 ``rig.calibration.records.lookup`` (the newest valid record per sensor, else the
@@ -156,14 +156,15 @@ def _encoders(cfg: RigConfig) -> list[Sensor]:
 
 # The rig's sensors, in the order of the card rows' columns: each entry gives the sensors
 # of one kind that a rig configuration has (none when it is not fitted).
-SENSORS: list[Callable[[RigConfig], list[Sensor]]] = [_load_cell, _strain_gauge, _encoders]
+SensorKind = Callable[[RigConfig], list[Sensor]]
+SENSOR_TABLE: list[SensorKind] = [_load_cell, _strain_gauge, _encoders]
 FEEDBACK = "load_cell_ratio"  # the raw column the loop's force feedback reads
 SAMPLE = "sample"             # the card rows' first column: the sample counter
 
 
 def sensors(cfg: RigConfig) -> list[Sensor]:
     """Every sensor of the rig, in the order of the card rows' columns (after ``sample``)."""
-    out = [s for kind in SENSORS for s in kind(cfg)]
+    out = [s for kind in SENSOR_TABLE for s in kind(cfg)]
     names = [SAMPLE, "time"] + [n for s in out for n in (s.raw, s.channel)]
     if len(set(names)) != len(names):
         raise InputError(f"channels: two sensors write the same channel: {names}")

@@ -1,0 +1,153 @@
+"""docs/architecture.md's "Add a sensor", followed literally (issue 14).
+
+The guide's example (a thermometer) is added the way the guide says, to the sensor table of
+a scratch copy of the package (rig/calrecords.py copied and edited, every other file
+linked, so the compiled model's cache is shared), and `rig run` presses the key on the
+simulated rig through the real processes (the acquisition process imports the copy too).
+The run file must hold the new channel, raw and calibrated, with its units and
+descriptions; so must the NI reader's rows. Any place that still wrote the card rows'
+columns by position, or kept a list of sensors of its own, fails here, and so does a
+guide whose block no longer fits the code."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+from unittest import mock
+
+import nidaqmx
+import numpy as np
+import pytest
+import yaml
+from nidaqmx.stream_readers import AnalogMultiChannelReader, CounterReader
+from test_daq_ni import by_name, fake_task  # the autospecs of nidaqmx's real classes
+
+from rig import calrecords, config, runfile
+from rig.ni_backend.daq import NiReader
+
+ROOT = Path(__file__).resolve().parents[1]
+GUIDE = ROOT / "docs" / "architecture.md"
+FORTE = ROOT / "profiles" / "forte.yaml"
+TABLE_LINE = re.compile(r"^SENSOR_TABLE: .*$", re.M)
+
+
+def guide() -> tuple[str, str]:
+    """The "Add a sensor" section and its one Python block."""
+    section = GUIDE.read_text().split("\n## Add a sensor\n", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert len(blocks) == 1, "the guide shows one Python block: the new sensor's entry"
+    return section, blocks[0]
+
+
+def edited_calrecords() -> str:
+    """rig/calrecords.py with the guide's block: its function above the table, the table's
+    line as the guide shows it."""
+    section, block = guide()
+    assert "rig/calrecords.py" in section and "SENSOR_TABLE" in section
+    src = (ROOT / "rig" / "calrecords.py").read_text()
+    old, new = TABLE_LINE.search(src), TABLE_LINE.search(block)
+    assert old and new, "rig/calrecords.py and the guide both show the SENSOR_TABLE line"
+    name = re.search(r"^def (\w+)\(", block, re.M)
+    assert name, "the guide's block defines the new sensor's function"
+    # the guide's table line is the code's with the new sensor listed last
+    assert new.group(0) == old.group(0)[:-1] + f", {name.group(1)}]", (old.group(0),
+                                                                       new.group(0))
+    return src[:old.start()] + block[:new.start()] + new.group(0) + src[old.end():]
+
+
+@pytest.fixture(scope="module")
+def shadow(tmp_path_factory) -> Path:
+    """A package folder whose rig is this one plus the guide's edit."""
+    root = tmp_path_factory.mktemp("shadow")
+    pkg = root / "rig"
+    pkg.mkdir()
+    for entry in (ROOT / "rig").iterdir():
+        if entry.name not in ("calrecords.py", "__pycache__"):
+            (pkg / entry.name).symlink_to(entry)
+    (pkg / "calrecords.py").write_text(edited_calrecords())
+    return root
+
+
+def edited_table(shadow: Path) -> ModuleType:
+    """The edited rig/calrecords.py as a module of its own (importing this rig)."""
+    spec = importlib.util.spec_from_file_location("edited_calrecords",
+                                                  shadow / "rig" / "calrecords.py")
+    assert spec and spec.loader
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # for its dataclasses
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
+                                                            tmp_path: Path) -> None:
+    rig_yaml = tmp_path / "rig.yaml"
+    rig_yaml.write_text(yaml.safe_dump({
+        "name": "add-a-sensor", "backend": "sim", "drive": {"port": "sim"},
+        "sim": {"realtime": False}, "loop": {"rest_s": 0.1}, "data_folder": str(tmp_path)}))
+    out = tmp_path / "run.h5"
+    env = {**os.environ, "PYTHONPATH": str(shadow)}
+    proc = subprocess.run([sys.executable, "-m", "rig", "run", str(FORTE), "--rig",
+                           str(rig_yaml), "-o", str(out)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    cfg = config.load(rig_yaml)
+    new = edited_table(shadow).sensors(cfg)[-1]
+    assert new.name not in {s.name for s in calrecords.sensors(cfg)}  # not in the real table
+
+    run = runfile.read(out)
+    assert run.status == "complete"
+    tr = run.trials[0]
+    for name, units, doc in ((new.raw, new.raw_units, new.raw_doc),
+                             (new.channel, new.units, new.doc)):
+        assert tr.units[name] == units and tr.descriptions[name] == doc
+        assert tr.channels[name].size == tr.channels["sample"].size
+    # the guide's simulated thermometer reads 21.5 degC (true calibration within its spread)
+    assert np.mean(tr.channels[new.channel]) == pytest.approx(21.5, abs=1.0)
+    assert np.all(np.diff(tr.channels["sample"]) == 1)
+    assert tr.units["force"] == "N" and tr.units["hammer_angle"] == "rad"  # the others too
+    cals = {c["sensor"]: c for c in run.metadata["calibrations"]}
+    assert cals[new.name]["nominal"] and cals[new.name]["units"] == new.units
+
+
+def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) -> None:
+    edited = edited_table(shadow)
+    monkeypatch.setattr(calrecords, "SENSOR_TABLE", edited.SENSOR_TABLE)
+    monkeypatch.setattr(nidaqmx, "Task", fake_task)
+    readers = {}
+    for name, cls in (("AnalogMultiChannelReader", AnalogMultiChannelReader),
+                      ("CounterReader", CounterReader)):
+        readers[name] = mock.create_autospec(cls)
+        monkeypatch.setattr(nidaqmx.stream_readers, name, readers[name])
+    cfg = config.from_mapping({"backend": "ni", "drive": {"port": "/dev/ttyS0"}})
+    names = calrecords.raw_names(cfg)
+    new = calrecords.sensors(cfg)[-1]
+    assert names[-1] == new.raw
+    r = NiReader({"config": cfg.model_dump(mode="json")})
+    ai = by_name("rig-bridges")
+    ai.ai_channels.add_ai_voltage_chan.assert_called_once()
+    type(ai.in_stream).avail_samp_per_chan = mock.PropertyMock(return_value=2)
+    n_ai = sum(not s.ni_counter for s in calrecords.sensors(cfg))
+
+    def fill_ai(data, number_of_samples_per_channel, timeout):
+        data[:] = [[0.215] * 2 if j == n_ai - 1 else [1e-4] * 2 for j in range(n_ai)]
+        return 2
+
+    def fill_ci(data, number_of_samples_per_channel, timeout):
+        data[:] = [7, 8]
+        return 2
+
+    readers["AnalogMultiChannelReader"].return_value.read_many_sample.side_effect = fill_ai
+    readers["CounterReader"].return_value.read_many_sample_double.side_effect = fill_ci
+    rows = r.read(0.0)
+    assert rows.shape == (2, len(names))
+    assert list(rows[:, names.index(new.raw)]) == [0.215, 0.215]
+    assert list(rows[:, names.index("hammer_counts")]) == [7, 8]
+    out = calrecords.convert(rows, cfg, calrecords.nominal(cfg))
+    assert out[new.channel] == pytest.approx([21.5, 21.5])
+    r.close()
