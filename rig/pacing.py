@@ -1,4 +1,5 @@
-"""Software pacing helpers for the simulated rig's clock (and the benchmark's bare loop).
+"""Software pacing for the simulated rig's clock (and the benchmark's bare loop), and the
+torque loop's OS set-up (``loop_cpu``, ``LoopScheduling``).
 
 On this kind of VM, sleeping to 0.5 ms before a deadline and then spinning on
 ``perf_counter`` wakes within ~1 us (median) where a plain sleep is ~100 us
@@ -16,8 +17,15 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import gc
 import os
+import sys
 import time
+from collections.abc import Callable
+from typing import Any
+
+from rig.config import RigConfig
+from rig.errors import InputError
 
 PR_SET_TIMERSLACK = 29
 SPIN_S = 0.0005
@@ -96,3 +104,78 @@ def normal_priority(tid: int = 0) -> None:
     """Back to the normal time-sharing class (SCHED_OTHER) for the calling thread (or ``tid``)."""
     with contextlib.suppress(AttributeError, OSError):
         os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+
+
+def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
+    """The CPU to pin the loop's thread to (``loop.cpu``), checked against this machine before
+    anything starts (one-line ValueError); None = unpinned, said once where unsupported."""
+    cpu = cfg.loop.cpu
+    if cpu is None:
+        return None
+    cpus = usable_cpus()
+    if cpus is None:
+        say(f"loop.cpu: {cpu} ignored: this OS cannot pin a thread to a CPU; the loop runs "
+            "unpinned")
+        return None
+    if cpu not in cpus:
+        raise InputError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
+                         f"CPUs {cpu_list(cpus)})")
+    return cpu
+
+
+def helper_threads(*owners: Any) -> list[int]:
+    """Native ids of the live threads the run started in its own process (``owner._thread``:
+    the drive monitor, the simulated drive's server, a multiprocessing queue's feeder)."""
+    out = []
+    for owner in owners:
+        th = getattr(owner, "_thread", None)
+        if th is not None and th.is_alive() and th.native_id is not None:
+            out.append(int(th.native_id))
+    return out
+
+
+class LoopScheduling:
+    """The loop thread's OS set-up for a run (``apply``) and its undoing (``undo``, always):
+    the garbage collector frozen and off, the GIL handed back quickly (a short switch
+    interval), the thread pinned to ``loop.cpu``, the real-time class for it and one below
+    for the run's helper threads."""
+
+    def __init__(self) -> None:
+        self.old_switch = sys.getswitchinterval()
+        self.realtime = False              # the loop's thread got the real-time class
+        self.pinned: set[int] | None = None  # the CPUs the loop's thread could use before
+        self.helpers: list[int] = []       # the run's other threads, raised with the loop
+
+    def apply(self, cpu: int | None, priority: int, helper_owners: tuple[Any, ...],
+              say: Callable[[str], None]) -> None:
+        gc.collect()
+        gc.freeze()  # keep the collector out of the loop (it would scan these objects)
+        gc.disable()
+        # the loop's thread gets the GIL back quickly from the drive monitor's thread, and
+        # (where permitted) a real-time class so other processes cannot delay its ticks; with
+        # loop.cpu, this thread (only it) stays on that CPU
+        sys.setswitchinterval(2e-4)
+        if cpu is not None:
+            self.pinned = pin_to_cpu(cpu)
+            if self.pinned is None:
+                say(f"loop.cpu: the OS refused to pin the loop to CPU {cpu}; running unpinned")
+        self.realtime = realtime_priority(priority)
+        if self.realtime:
+            # the run's other threads in this process (drive monitor, simulated drive, the
+            # command queue's feeder) take the GIL too: one preempted by another process while
+            # holding it would hold the loop for milliseconds, so they get the real-time class
+            # one below
+            helper_priority = max(1, priority - 1)
+            self.helpers = [tid for tid in helper_threads(*helper_owners)
+                            if realtime_priority(helper_priority, tid)]
+
+    def undo(self) -> None:
+        if self.realtime:
+            normal_priority()
+        for tid in self.helpers:
+            normal_priority(tid)
+        if self.pinned is not None:
+            set_cpus(self.pinned)
+        sys.setswitchinterval(self.old_switch)
+        gc.enable()
+        gc.unfreeze()

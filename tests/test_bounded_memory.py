@@ -45,9 +45,9 @@ class _Q:
 
 
 def test_loop_records_keep_only_the_last_rows_once_sent() -> None:
-    from rig.services.run import _Records
+    from rig.recovery import LoopRecords
 
-    rec = _Records(trials=2, total=300, keep=40)
+    rec = LoopRecords(trials=2, total=300, keep=40)
     q = _Q()
     for i in range(250):
         k = 0 if i < 150 else 1

@@ -214,17 +214,17 @@ def test_run_embeds_the_records_it_used(tmp_path: Path) -> None:
 
 
 def test_loop_feedforward_uses_the_motor_calibration_when_there_is_one(tmp_path: Path) -> None:
-    from rig.services import run as run_svc
+    from rig.calibration.motor import demand_source
 
     cfg = sim(tmp_path)
     forte = profiles.load(ROOT / "profiles" / "forte.yaml")
-    ff, what = run_svc.demand_source(cfg, records.embedded(cal_records.lookup(cfg), cfg))
+    ff, what = demand_source(cfg, records.embedded(cal_records.lookup(cfg), cfg))
     assert what["kind"] == "advance" and what["lead_s"] == 0.008
     assert ff(forte, 0.05) == pytest.approx(float(forte.at(0.058)))
     result, path, _ = svc.calibrate_motor(cfg)
     full = records.embedded(cal_records.lookup(cfg), cfg)
     assert [r["sensor"] for r in full] == ["motor"]
-    ff, what = run_svc.demand_source(cfg, full)
+    ff, what = demand_source(cfg, full)
     comp = result.compensation
     assert what["kind"] == "motor calibration" and what["record"] == records.read(path)[
         "content_hash"]

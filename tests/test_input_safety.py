@@ -119,7 +119,7 @@ def test_defaults_and_round_trip_still_hold(tmp_path: Path) -> None:
 def test_motor_required_with_raw_units_runs_on_the_advance(tmp_path: Path) -> None:
     """calibration.required: [motor] without a record: refused on ni, or with use_raw_units
     the run goes on with the loop.advance_s lead (the motor has no data-sheet record)."""
-    from rig.services.run import demand_source
+    from rig.calibration.motor import demand_source
 
     folder = tmp_path / "cal"
     folder.mkdir()

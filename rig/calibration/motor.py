@@ -22,6 +22,7 @@ gives the newest motor record's compensation (identity map, lag =
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +30,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from rig import loadcell as loadcell_mod
+from rig import motor_torque
 from rig.calibration.settings import MotorCal
 from rig.config import RigConfig
 from rig.daq import Bench
@@ -279,3 +281,24 @@ def compensation_for(cfg: RigConfig) -> MotorCompensation:
     if found is None:
         return MotorCompensation.identity(cfg.loop.advance_s)
     return compensation_from_record(found[0])
+
+
+def demand_source(cfg: RigConfig, full_records: list[dict[str, Any]]
+                  ) -> tuple[Callable[[Profile, float], float], dict[str, Any]]:
+    """The loop's feedforward and what it is: the motor calibration's compensation (inverse
+    static map of the profile ``lag_s`` ahead) when the run uses a motor record, else the
+    profile ``loop.advance_s`` ahead (the thesis's open-loop lag compensation)."""
+    rec = next((r for r in full_records if r.get("sensor") == "motor"), None)
+    if rec is None:
+        advance = cfg.loop.advance_s
+
+        def ahead(profile: Profile, t: float) -> float:
+            return motor_torque.feedforward(profile, t, advance)
+
+        return ahead, {"kind": "advance", "lead_s": advance,
+                       "source": "loop.advance_s (no motor calibration record)"}
+    comp = compensation_from_record(rec)
+    return comp.demand_at, {"kind": "motor calibration", "lead_s": comp.lag_s,
+                            "map_demand_n": list(comp.map_demand_n),
+                            "map_force_n": list(comp.map_force_n),
+                            "record": rec["content_hash"], "created": rec["created"]}

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from rig import profiles, runfile
+from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.control import ilc
@@ -81,7 +82,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
         ff, _ = learned_records.demand_source(prior[0])
         say(f"learning from the learned feedforward {prior[1]}")
     else:
-        ff, _ = run_svc.demand_source(cfg, full_records)
+        ff, _ = motor_cal.demand_source(cfg, full_records)
     initial = np.array([ff(profile, x) for x in t])
     motor = next((r for r in full_records if r.get("sensor") == "motor"), None)
     filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None

@@ -12,78 +12,45 @@ record is in use, its inverse force map of profile(t + lag) -- controller hook
 (may use the load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
+
+Its parts, by job: the controller hook in rig.controller, the feedforward choice in
+rig.calibration.motor.demand_source, the loop thread's OS set-up in rig.pacing
+(``loop_cpu``, ``LoopScheduling``), the loop's records, the acquisition's end and the
+file's recovery in rig.recovery.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import gc
-import importlib
 import math
 import multiprocessing as mp
 import os
 import queue
 import shutil
 import signal
-import sys
 import threading
 import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from rig import loadcell, motor_torque, pacing, profiles, runfile
-from rig.acquisition import COMMAND_DOCS, COMMAND_UNITS, run_acquisition
+from rig import loadcell, motor_torque, pacing, profiles, recovery, runfile
+from rig.acquisition import run_acquisition
 from rig.analysis import events
 from rig.backends import open_daq
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
+from rig.controller import Controller, load_controller
 from rig.daq import Daq
 from rig.drive import Drive, DriveError, DriveMonitor
 from rig.errors import InputError
 from rig.model.vocabulary import EVENT_DOCS
-
-
-class Controller(Protocol):
-    """The loop's feedback hook: the demand (N) from the feedforward and the load cell."""
-
-    def reset(self) -> None: ...
-
-    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float: ...
-
-
-class OpenLoop:
-    """The thesis's open-loop control: the (advanced) profile is the demand."""
-
-    name = "open_loop"
-
-    def reset(self) -> None:
-        pass
-
-    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
-        return feedforward_n
-
-
-def load_controller(spec: str) -> Controller:
-    """``open_loop`` or ``module:Class`` (a class with reset() and __call__)."""
-    if spec == "open_loop":
-        return OpenLoop()
-    mod, _, cls = spec.partition(":")
-    if not mod or not cls:
-        raise InputError(f"loop.controller: expected 'open_loop' or 'module:Class', got {spec!r}")
-    try:
-        obj: Controller = getattr(importlib.import_module(mod), cls)()
-    except Exception as exc:  # the user's module: any error in importing or making it, one line
-        text = " ".join(f"loop.controller: cannot load {spec!r} ({type(exc).__name__}: "
-                        f"{exc})".split())
-        raise InputError(text) from None
-    return obj
 
 
 @dataclass
@@ -175,27 +142,6 @@ def repeatability(path: Path, channels: tuple[str, ...] = ("force", "shank_strai
         out[name] = {"rms_deviation": float(dev.max()), "range": float(np.ptp(mean)),
                      "relative": float(dev.max() / span)}
     return out
-
-
-def demand_source(cfg: RigConfig, full_records: list[dict[str, Any]]
-                  ) -> tuple[Callable[[profiles.Profile, float], float], dict[str, Any]]:
-    """The loop's feedforward and what it is: the motor calibration's compensation (inverse
-    static map of the profile ``lag_s`` ahead) when the run uses a motor record, else the
-    profile ``loop.advance_s`` ahead (the thesis's open-loop lag compensation)."""
-    rec = next((r for r in full_records if r.get("sensor") == "motor"), None)
-    if rec is None:
-        advance = cfg.loop.advance_s
-
-        def ahead(profile: profiles.Profile, t: float) -> float:
-            return motor_torque.feedforward(profile, t, advance)
-
-        return ahead, {"kind": "advance", "lead_s": advance,
-                       "source": "loop.advance_s (no motor calibration record)"}
-    comp = motor_cal.compensation_from_record(rec)
-    return comp.demand_at, {"kind": "motor calibration", "lead_s": comp.lag_s,
-                            "map_demand_n": list(comp.map_demand_n),
-                            "map_force_n": list(comp.map_force_n),
-                            "record": rec["content_hash"], "created": rec["created"]}
 
 
 def tracking_error(path: Path, trial: int = 0, tail_s: float = 0.05) -> dict[str, float]:
@@ -315,7 +261,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     ctl = controller or load_controller(cfg.loop.controller)
     cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
-    feedforward, compensation = demand_source(cfg, full_records)
+    feedforward, compensation = motor_cal.demand_source(cfg, full_records)
     # ---- a learned feedforward table replaces the compensation ----
     if learned is not None:
         from rig.control import records as learned_records
@@ -376,7 +322,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
-    cpu = loop_cpu(cfg, say)
+    cpu = pacing.loop_cpu(cfg, say)
     if cfg.backend == "sim":  # (seconds of silence otherwise: say what the start is doing)
         say("building the simulated rig's action model ..." if lockstep or not cfg.sim.realtime
             else "starting the simulated rig's process (it builds the action model) ...")
@@ -388,14 +334,11 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     proc: Any = None
     drive: Drive | None = None
     monitor: DriveMonitor | None = None
-    rows = _Records(trials, total, keep=int(KEEP_RECORDS_S * hz))
+    rows = recovery.LoopRecords(trials, total, keep=int(recovery.KEEP_RECORDS_S * hz))
     reason: str | None = None
     last_tick = -1
     abort_tb: str | None = None
-    old_switch = sys.getswitchinterval()
-    realtime = False
-    pinned: set[int] | None = None  # the CPUs the loop's thread could use before pinning
-    helpers: list[int] = []  # the run's other threads, raised with the loop
+    sched = pacing.LoopScheduling()
     try:
         if cfg.drive.port == "sim":
             from rig.sim_backend.daq import SimDaq
@@ -431,25 +374,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         lc = cals["load_cell"]
         streak = 0
         trial_now = -1
-        gc.collect()
-        gc.freeze()  # keep the collector out of the loop (it would scan these objects)
-        gc.disable()
-        # the loop's thread gets the GIL back quickly from the drive monitor's thread, and
-        # (where permitted) a real-time class so other processes cannot delay its ticks; with
-        # loop.cpu, this thread (only it) stays on that CPU
-        sys.setswitchinterval(2e-4)
-        if cpu is not None:
-            pinned = pacing.pin_to_cpu(cpu)
-            if pinned is None:
-                say(f"loop.cpu: the OS refused to pin the loop to CPU {cpu}; running unpinned")
-        realtime = pacing.realtime_priority(cfg.loop.realtime_priority)
-        if realtime:
-            # the run's other threads in this process (drive monitor, simulated drive, the command
-            # queue's feeder) take the GIL too: one preempted by another process while holding
-            # it would hold the loop for milliseconds, so they get the real-time class one below
-            helper_priority = max(1, cfg.loop.realtime_priority - 1)
-            helpers = [tid for tid in _helper_threads(monitor, sim_drive, ctrl)
-                       if pacing.realtime_priority(helper_priority, tid)]
+        sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say)
         while True:
             tick = daq.wait_for_tick()
             i = tick.index
@@ -518,15 +443,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     finally:
         stop_state["in_loop"] = True
         _safe(lambda: daq.write_volts(0.0))
-        if realtime:
-            pacing.normal_priority()
-        for tid in helpers:
-            pacing.normal_priority(tid)
-        if pinned is not None:
-            pacing.set_cpus(pinned)
-        sys.setswitchinterval(old_switch)
-        gc.enable()
-        gc.unfreeze()
+        sched.undo()
         if drive is not None and drive.enabled:
             _safe(drive.disable)
         if monitor is not None:
@@ -535,12 +452,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     status = "complete" if reason is None else f"aborted: {reason}"
     stats = lateness_stats(rows.lateness[:rows.n], rows.missed[:rows.n],
                            cfg.limits.late_threshold_s)
-    stats["realtime_priority"] = float(cfg.loop.realtime_priority if realtime else 0)
-    stats["cpu"] = float(cpu) if cpu is not None and pinned is not None else -1.0
+    stats["realtime_priority"] = float(cfg.loop.realtime_priority if sched.realtime else 0)
+    stats["cpu"] = float(cpu) if cpu is not None and sched.pinned is not None else -1.0
     try:
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
-        samples = _finish(proc, ctrl, status_q, rows, trials, status, stats,
+        samples = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
                           (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
         daq.close()
@@ -580,34 +497,6 @@ def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict
     return out
 
 
-def loop_cpu(cfg: RigConfig, say: Callable[[str], None]) -> int | None:
-    """The CPU to pin the loop's thread to (``loop.cpu``), checked against this machine before
-    anything starts (one-line ValueError); None = unpinned, said once where unsupported."""
-    cpu = cfg.loop.cpu
-    if cpu is None:
-        return None
-    cpus = pacing.usable_cpus()
-    if cpus is None:
-        say(f"loop.cpu: {cpu} ignored: this OS cannot pin a thread to a CPU; the loop runs "
-            "unpinned")
-        return None
-    if cpu not in cpus:
-        raise InputError(f"loop.cpu: CPU {cpu} is not available here (this process may use "
-                         f"CPUs {pacing.cpu_list(cpus)})")
-    return cpu
-
-
-def _helper_threads(*owners: Any) -> list[int]:
-    """Native ids of the live threads the run started in its own process (``owner._thread``:
-    the drive monitor, the simulated drive's server, a multiprocessing queue's feeder)."""
-    out = []
-    for owner in owners:
-        th = getattr(owner, "_thread", None)
-        if th is not None and th.is_alive() and th.native_id is not None:
-            out.append(int(th.native_id))
-    return out
-
-
 def daq_lockstep(daq: Daq) -> bool:
     return bool(getattr(daq, "lockstep", False))
 
@@ -633,133 +522,3 @@ def _expect(status_q: Any, proc: Any, what: str, timeout: float) -> None:
         if msg[0] == "error":
             raise _Abort(f"acquisition: {msg[1].splitlines()[0]}")
     raise _Abort(f"the acquisition process did not report {what!r} within {timeout} s")
-
-
-_COLS = ("time", "tick", "target", "feedforward", "demand", "volts", "limited",
-         "measured_force", "lateness", "missed")
-
-
-ACQUISITION_EXIT_S = 1.0  # s: the acquisition's exit after it closed the file and said so
-KEEP_RECORDS_S = 10.0  # s of the loop's records kept after sending (the recovery's margin)
-
-
-class _Records:
-    """The loop's records (one row per cycle: the ``_COLS`` and the trial), sent to the
-    acquisition process in batches. Memory stays flat over long runs: only the last ``keep``
-    rows are kept once sent (enough to refill what a dead acquisition had not flushed), and
-    lateness and missed ticks go into arrays sized for the run up front."""
-
-    def __init__(self, trials: int, total: int, keep: int) -> None:
-        self.rows: list[list[float]] = []
-        self.base = 0                 # rows dropped from the front (all sent)
-        self.sent = [0] * trials      # rows of trial k sent
-        self.made = [0] * trials      # rows of trial k recorded
-        self.keep = max(keep, 1)
-        self.lateness = np.zeros(total + 1)
-        self.missed = np.zeros(total + 1)
-        self.n = 0
-
-    def add(self, row: list[float]) -> None:
-        self.rows.append(row)
-        self.made[int(row[10])] += 1
-        self.lateness[self.n] = row[8]
-        self.missed[self.n] = row[9]
-        self.n += 1
-
-    def unsent(self) -> int:
-        return self.base + len(self.rows) - sum(self.sent)
-
-    def send(self, ctrl: Any) -> None:
-        """Send the rows not yet sent, per trial; then drop all but the last ``keep``."""
-        done = sum(self.sent) - self.base
-        arr = np.array(self.rows[done:], dtype=float).reshape(-1, 11)
-        for k in np.unique(arr[:, 10]).astype(int):
-            part = arr[arr[:, 10] == k]
-            ctrl.put(("commands", int(k), {c: part[:, j] for j, c in enumerate(_COLS)}))
-            self.sent[k] += part.shape[0]
-        excess = len(self.rows) - self.keep
-        if excess > 0:
-            del self.rows[:excess]
-            self.base += excess
-
-    def trial_rows(self, k: int) -> tuple[int, np.ndarray]:
-        """(index within trial k of its first kept row, the kept rows of trial k)."""
-        arr = np.array(self.rows, dtype=float).reshape(-1, 11)
-        part = arr[arr[:, 10] == k]
-        return self.made[k] - part.shape[0], part
-
-
-def _finish(proc: Any, ctrl: Any, status_q: Any, rows: _Records, trials: int, status: str,
-            stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
-            abort_tb: str | None = None, done_trials: int = 0) -> int | None:
-    """Stop the acquisition process and see the file closed; recover it if the process died."""
-    meta: dict[str, Any] = {"loop_lateness": stats}
-    if abort_tb is not None:
-        meta["abort_traceback"] = abort_tb
-    tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
-    if proc is None:
-        return None
-    msgs = []
-    if proc.is_alive():
-        rows.send(ctrl)
-        ctrl.put(("stop", end_sample, status, meta, tattrs))
-        # wait for its answer (the file is closed by then), not for its interpreter's exit
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end:
-            try:
-                msgs.append(status_q.get(timeout=0.02))
-            except queue.Empty:
-                if not proc.is_alive():
-                    break
-                continue
-            if msgs[-1][0] in ("done", "error"):
-                break
-        proc.join(timeout=ACQUISITION_EXIT_S)
-    while True:
-        try:
-            msgs.append(status_q.get(timeout=0.05))
-        except queue.Empty:
-            break
-    done = [m for m in msgs if m[0] == "done"]
-    errors = [m[1].splitlines()[0] for m in msgs if m[0] == "error"]
-    if proc.is_alive():
-        proc.kill()
-        proc.join(timeout=5.0)
-        if not done:
-            errors.append("the acquisition process did not stop; killed")
-    # the acquisition is gone: what is still in the command queue's pipe has no reader, and
-    # joining its feeder thread at exit would hang the run's process for good
-    ctrl.cancel_join_thread()
-    ctrl.close()
-    status_q.close()
-    if done and proc.exitcode in (0, -signal.SIGKILL):  # (killed while exiting, file closed)
-        return int(done[0][1])
-    # the acquisition process died or failed: finish the file here
-    why = errors[0] if errors else f"the acquisition process died (exit code {proc.exitcode})"
-    final = status if status.startswith("aborted") else f"aborted: {why}"
-    if errors and "acquisition process died" in status:
-        final = f"aborted: {errors[0]}"
-    if not path.is_file():
-        return None
-    w = runfile.RunWriter.reopen(path)
-    for k in range(trials):
-        first, part = rows.trial_rows(k)
-        if not part.shape[0]:
-            continue
-        grp = f"trial_{k:03d}"
-        have = 0
-        if grp in w.file and "commands" in w.file[grp] and "time" in w.file[grp]["commands"]:
-            have = int(w.file[grp]["commands"]["time"].shape[0])
-        tw = w.trial(k)
-        if have < first + part.shape[0]:  # (a gap if the file lacks rows no longer kept)
-            tw.append("commands", {c: part[max(0, have - first):, j]
-                                   for j, c in enumerate(_COLS)}, COMMAND_UNITS, COMMAND_DOCS)
-    for name, value in meta.items():
-        w.add_metadata(name, value)
-    for k, attrs in tattrs.items():
-        if f"trial_{k:03d}" in w.file:
-            w.trial(k).set_attrs(**attrs)
-    if errors and final != f"aborted: {errors[0]}":
-        w.add_metadata("acquisition_error", errors[0])
-    w.close(final)
-    return None
