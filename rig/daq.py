@@ -9,7 +9,8 @@ missing, ``rig.backends.open_daq`` raises.
 
 Loop side (the run's process):  arm() -> wait_for_tick() -> write_volts() ...
 Acquisition side (its own process): open_reader(daq.reader_spec()) -> start()
--> read() blocks of rows [sample, load_cell_ratio, (strain_ratio), counts...].
+-> read() blocks of rows in the columns of ``rig.calrecords.raw_names`` (sample, then
+one per sensor of the sensor table).
 Calibration bench (``Bench``): apply_mass, read_bridge, null_offset, shunt,
 drive_static, key_travel (docs/calibration.md).
 """

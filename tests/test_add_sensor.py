@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import yaml
 from nidaqmx.stream_readers import AnalogMultiChannelReader, CounterReader
-from test_daq_ni import by_name, fake_task  # the autospecs of nidaqmx's real classes
+from test_daq_ni import TASKS, by_name, fake_task  # autospecs of nidaqmx's real classes
 
 from rig import calrecords, config, runfile
 from rig.ni_backend.daq import NiReader
@@ -116,6 +116,7 @@ def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
 
 
 def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) -> None:
+    TASKS.clear()
     edited = edited_table(shadow)
     monkeypatch.setattr(calrecords, "SENSOR_TABLE", edited.SENSOR_TABLE)
     monkeypatch.setattr(nidaqmx, "Task", fake_task)
