@@ -80,10 +80,8 @@ def model(effects: tuple[str, ...] = ()) -> ActionModel:
 @cache
 def blow(name: str, effects: tuple[str, ...] = ()) -> SimResult:
     if name == "slow":
-        prof = regulation.slow_press()
-    else:
-        prof = profiles.load(ROOT / "profiles" / f"{name}.yaml")
-    return model(effects).simulate(prof)
+        return regulation.press(model(effects))
+    return model(effects).simulate(profiles.load(ROOT / "profiles" / f"{name}.yaml"))
 
 
 def string_gap(res: SimResult) -> np.ndarray:

@@ -413,9 +413,9 @@ def test_user_effect_adds_a_state_with_its_own_dynamics(tmp_path, forte, forte_r
     ref = f"{tmp_path / 'maxwell.py'}:HammerMaxwell"
     free = ActionModel(effects=[ref])
     rest = free.rest_state()
-    assert rest.shape == (19,) and rest[18] == pytest.approx(rest[5], abs=1e-9)
+    assert rest.shape == (k.NY + 1,) and rest[k.NY] == pytest.approx(rest[5], abs=1e-9)
     y0 = rest.copy()
-    y0[18] = 0.5
+    y0[k.NY] = 0.5
     step = free.stepper(y0)
     step.advance(0.05, 0.0)
     res = step.result()

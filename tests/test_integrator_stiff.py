@@ -28,6 +28,7 @@ from rig.model.integrators_stiff import (
     _spectral_radius,
     jacobian,
 )
+from rig.params import Parameters
 
 FULL = ["flexible_shank", "key_liftoff"]
 
@@ -169,6 +170,9 @@ def test_jacobian_and_spectral_radius(full_model: ActionModel) -> None:
 
 def test_rigid_model_freezes_coordinates() -> None:
     act = _active(ActionModel().packed.arrays, k.NY)
+    assert act.tolist() == [k.QK, k.QW, k.QJ, k.QR, k.QH, k.QZ]  # z_b: the back check's law
+    thesis_law = Parameters.default().set("friction_law.contact.4", "smoothed")
+    act = _active(ActionModel(thesis_law).packed.arrays, k.NY)
     assert act.tolist() == [k.QK, k.QW, k.QJ, k.QR, k.QH]
 
 

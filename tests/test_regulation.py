@@ -24,7 +24,7 @@ def rig_cli(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def press():
-    return ActionModel().simulate(regulation.slow_press())
+    return regulation.press(ActionModel())
 
 
 def test_figures_follow_their_definitions(press):

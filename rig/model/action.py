@@ -231,6 +231,7 @@ class ActionModel:
         self.active = np.ones(k.NQ, dtype=bool)
         self.active[k.QYK] = build.flags["liftoff"]
         self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
+        self.active[k.QZ] = self.packed.arrays[0][k.S_BRISTLE] > 0.5
         pts = build.params.tree["points"]
         self._head_pt = np.array(pts["hammer_head"][HEAD_STRIKE_POINT]["at"], dtype=float)
         beam = build.params.tree["hammer_shank_beam"]
@@ -346,7 +347,7 @@ class ActionModel:
         st = self.build.params.tree["initial_state"]
         y = np.zeros(self.n_state)
         for i, name in enumerate(COORDINATES):
-            if self.active[i] and name != "y_k":
+            if self.active[i] and name not in ("y_k", "z_b"):
                 y[i] = st[name]
         for e, sl in self.effect_states:
             y[sl] = [s.initial for s in e.states]
@@ -578,7 +579,8 @@ class ActionModel:
         def total(t: float, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             force = np.zeros(k.NQ)
             dz = np.zeros(self.n_state - k.NY)
-            q, qd = y[: k.NQ], y[k.NQ : k.NY]
+            # effects see the mechanism's 9 coordinates (not the bristle deflection)
+            q, qd = y[: k.NQ_MECH], y[k.NQ : k.NQ + k.NQ_MECH]
             for e in self.python_forces:
                 sl = slices.get(id(e))
                 if sl is None:
@@ -588,7 +590,7 @@ class ActionModel:
                     f = e.generalized_force(t, q, qd, z)
                     dz[sl.start - k.NY : sl.stop - k.NY] = e.state_derivative(t, q, qd, z)
                 if f is not None:
-                    force += np.asarray(f, dtype=float)
+                    force[: k.NQ_MECH] += np.asarray(f, dtype=float)
             return force, dz
 
         return total

@@ -78,6 +78,34 @@ def _feature(params: Parameters, ref: str, sections: list[float], shank_len: flo
     return row
 
 
+FRICTION_LAWS = ("smoothed", "bristle")
+
+
+def static_coefficient(mu_a: float, b1: float, b2: float) -> float:
+    """The peak of Eq. 3.6's coefficient over the slip speed (its static friction)."""
+    r = np.linspace(0.0, 10.0, 20001)
+    return float(mu_a * np.max(np.tanh(r) + b1 * r / (1.0 + b2 * r**4)))
+
+
+def _friction_law(law: np.ndarray, cid: int, name: str, bristle: dict) -> None:
+    """Fill the friction-law columns of contact ``cid``'s law row."""
+    if name not in FRICTION_LAWS:
+        raise InputError(f"friction_law.contact.{cid}: expected one of {FRICTION_LAWS}, "
+                         f"got {name!r}")
+    if name == "smoothed" or law[k.L_MU_A] <= 0.0:
+        law[k.L_FLAW] = k.FRICTION_SMOOTHED
+        return
+    mu_s = static_coefficient(law[k.L_MU_A], law[k.L_B1], law[k.L_B2])
+    for field in ("presliding", "damping_time", "relax_time", "release_time"):
+        if not float(bristle[field]) > 0.0:
+            raise InputError(f"friction_law.bristle.{field}: expected a positive value, "
+                             f"got {bristle[field]!r}")
+    law[k.L_FLAW] = k.FRICTION_BRISTLE
+    law[k.L_MU_S] = mu_s
+    law[k.L_SIG0] = mu_s / bristle["presliding"]
+    law[k.L_SIG1] = law[k.L_SIG0] * bristle["damping_time"]
+
+
 def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = False) -> Packed:
     """Arrays for the kernel; ``liftoff``/``flexible_shank`` switch the built-in effects."""
     t = params.tree
@@ -107,6 +135,11 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     sp[k.S_LIFTOFF] = 1.0 if liftoff else 0.0
     sp[k.S_FLEX] = 1.0 if flexible_shank else 0.0
 
+    bristle = t["friction_law"]["bristle"]
+    sp[k.S_ZTAU] = bristle["relax_time"]
+    sp[k.S_ZOPEN] = bristle["release_time"]
+    laws = t["friction_law"]["contact"]
+
     sections: list[float] = []
     cf_rows, cl_rows, ids, names = [], [], [], []
     vt = t["friction_threshold"]["contact_vt"]
@@ -125,9 +158,16 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
         on = cid != 14 or liftoff  # contact 14 (balance rail) exists only with lift-off
         law[k.L_ON] = 1.0 if on else 0.0
         law[k.L_TYPE] = k.LAW_HUNT_CROSSLEY
+        _friction_law(law, cid, laws.get(cid, "smoothed"), bristle)
         cl_rows.append(law)
     cf = np.array(cf_rows, dtype=float)
     cl = np.array(cl_rows, dtype=float)
+    bristle_on = (cl[:, k.L_FLAW] == k.FRICTION_BRISTLE) & (cl[:, k.L_ON] > 0.5)
+    n_bristle = int(np.count_nonzero(bristle_on))
+    if n_bristle > 1:
+        raise InputError(f"friction_law.contact: at most one contact may use the bristle law "
+                         f"(the model has one bristle coordinate), got {n_bristle}")
+    sp[k.S_BRISTLE] = float(n_bristle)
 
     jf = np.zeros((6, 4))
     wt = t["friction_threshold"]["joint_wt"]

@@ -183,7 +183,7 @@ class Fingertip(Effect):
 
         x, _, lever = self._indentation(t, q, qd)
         f = self._pulp(x, float(z[0][0]))[2]
-        out = np.zeros(k.NQ)
+        out = np.zeros(k.NQ_MECH)
         out[k.QK] = -f * lever   # straight down at the key top
         out[k.QYK] = -f
         return out

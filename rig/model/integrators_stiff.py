@@ -547,4 +547,5 @@ def _active(model: tuple[np.ndarray, ...], n_state: int) -> np.ndarray:
     active = np.ones(k.NQ, dtype=bool)
     active[k.QYK] = sp[k.S_LIFTOFF] > 0.5
     active[k.QU1 : k.QV2 + 1] = sp[k.S_FLEX] > 0.5
+    active[k.QZ] = sp[k.S_BRISTLE] > 0.5
     return np.flatnonzero(active).astype(np.int64)

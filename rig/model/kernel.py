@@ -1,6 +1,6 @@
 """Compiled equations of motion of the planar grand-piano action.
 
-Generalized coordinates (always 9; those of effects that are off stay frozen):
+Generalized coordinates (always 10; those of effects that are off stay frozen):
 
     0 theta_k  key, ground -> key frame (rad)
     1 y_k      key pivot lift along the prismatic joint (m)      [key_liftoff]
@@ -11,9 +11,18 @@ Generalized coordinates (always 9; those of effects that are off stay frozen):
     6 u1       shank axial elastic coordinate (1)                [flexible_shank]
     7 v1       shank bending coordinate, x^2 term (1/m)          [flexible_shank]
     8 v2       shank bending coordinate, x^3 term (1/m^2)        [flexible_shank]
+    9 z_b      bristle deflection of the one contact whose friction is the bristle
+               law (m), the back check's by default              [bristle law]
 
 The mass matrix is block diagonal (key | whippen, jack, repetition | hammer and
-shank); each block is assembled and solved on its own. State y = [q (9), qdot (9)].
+shank | bristle); each block is assembled and solved on its own. State y = [q (10),
+qdot (10)].
+
+The bristle deflection z_b follows a first-order law, dz/dt = r(slip, z) (LuGre,
+normalised by the normal force, see ``bristle_rate``). It is carried as a coordinate
+whose rate relaxes to r within ``sp[S_ZTAU]``: zdd = (r - zd) / tau. That keeps the
+state second-order, which the Rosenbrock integrator's Jacobian structure
+[[0, I], [JA, JB]] needs, at a lag of tau (20 us by default) behind the law.
 Each body is a frame with origin org, angle phi and their Jacobians; forces
 enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T, and velocity-product
 terms through each frame's bias acceleration. Everything
@@ -28,10 +37,11 @@ import math
 import numpy as np
 from numba import njit
 
-NQ = 9
+NQ = 10
 NY = 2 * NQ
-QK, QYK, QW, QJ, QR, QH, QU1, QV1, QV2 = range(9)
-BLOCKS = ((0, 2), (2, 5), (5, 9))
+NQ_MECH = 9  # the mechanism's coordinates (all but z_b): what Python-level effects see
+QK, QYK, QW, QJ, QR, QH, QU1, QV1, QV2, QZ = range(10)
+BLOCKS = ((0, 2), (2, 5), (5, 9), (9, 10))
 
 # frames
 F_GROUND, F_PIVOT, F_KEY, F_WHIPPEN, F_JACK, F_REP, F_HAMMER, F_HEAD = range(8)
@@ -51,7 +61,9 @@ S_KEYPX, S_KEYPY = 19, 20  # input force point on the key
 S_PIVY0 = 21
 S_JACK_T, S_REP_K, S_REP_TH0 = 22, 23, 24
 S_LIFTOFF, S_FLEX = 25, 26
-N_SP = 27
+S_BRISTLE = 27  # 1 when one contact's friction is the bristle law (z_b moves)
+S_ZTAU, S_ZOPEN = 28, 29  # bristle rate relaxation time; bristle recovery when open (s)
+N_SP = 30
 
 # joint friction rows (jf): key, whippen, jack, repetition, hammer, key slider on its
 # balance-rail pin (lift-off; force in N, speed in m/s) ; cols E, F1, F2, wt
@@ -59,7 +71,12 @@ JOINT_COORD = (QK, QW, QJ, QR, QH, QYK)
 
 # contact law columns (cl)
 L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON, L_TYPE, L_P1, L_P2 = range(12)
-N_LAW = 12
+# friction law (L_FLAW): Eq. 3.6's smoothed Coulomb law, or the bristle law (LuGre) with
+# stiffness L_SIG0 (1/m, per newton of normal force), damping L_SIG1 (s/m) and static
+# coefficient L_MU_S (L_MU_A stays the kinetic one, L_VT the Stribeck speed)
+L_FLAW, L_SIG0, L_SIG1, L_MU_S = 12, 13, 14, 15
+N_LAW = 16
+FRICTION_SMOOTHED, FRICTION_BRISTLE = 0, 1
 # normal-law types (L_TYPE): the thesis's Hunt-Crossley fit; rate-independent hysteresis
 # (L_P1 = loading/unloading ratio h, L_P2 = velocity scale); in series with a massless
 # spring of stiffness L_P1 (a compliant string)
@@ -342,6 +359,23 @@ def friction_coefficient(slip, mu_a, b1, b2, vt):
 
 
 @njit(cache=True, inline="always")
+def bristle_coefficient(slip, mu_a, mu_s, vt):
+    """Steady sliding coefficient g(v) = A + (mu_s - A) exp(-(v/v_t)^2) of the bristle law
+    (the Stribeck curve of LuGre; equal to Eq. 3.6's A once |v| >> v_t)."""
+    r = slip / vt
+    return mu_a + (mu_s - mu_a) * math.exp(-r * r)
+
+
+@njit(cache=True, inline="always")
+def bristle_rate(slip, z, mu_a, mu_s, vt, sig0):
+    """dz/dt of the bristle law: slip - sig0 |slip| z / g(slip) (LuGre, per newton).
+
+    At zero slip z stands still whatever the load: the contact sticks, and the friction
+    force fn sig0 z holds any tangential load up to fn mu_s without creeping."""
+    return slip - sig0 * abs(slip) * z / bristle_coefficient(slip, mu_a, mu_s, vt)
+
+
+@njit(cache=True, inline="always")
 def normal_force(pen, pen_rate, a, b, c, d):
     """Eq. 3.2-3.3: f = (a x^3 + b x^2 + c x)(1 + D xdot), never pulling."""
     if pen <= 0.0:
@@ -385,13 +419,18 @@ def normal_force_law(pen, pen_rate, law):
 
 
 @njit(cache=True, inline="always")
-def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, forces=True):
+def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen, forces=True):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
     With ``full`` false, separated contacts get only their penetration (the
     integrator's fast path); with ``full`` true every output column is filled.
     With ``forces`` false Q is left alone (sampled outputs need no dynamics).
+    zb, zbd: the bristle deflection and its rate; returns the bristle law's dz/dt (the
+    bristles recover within ``zopen`` while their contact is open) and whether the
+    bristle contact carries load.
     """
+    zrate = -zb / zopen if zopen > 0.0 else 0.0
+    zload = False
     for i in range(cl.shape[0]):
         if cl[i, L_ON] < 0.5:
             for j in range(N_CONTACT_OUT):
@@ -415,7 +454,14 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, forces=True):
         slip = tx * rvx + ty * rvy
         fn = normal_force_law(pen, pen_rate, cl[i])
         ft = 0.0
-        if fn > 0.0 and cl[i, L_MU_A] > 0.0:
+        if fn > 0.0 and cl[i, L_FLAW] == FRICTION_BRISTLE:
+            vt = cl[i, L_VT]
+            zrate = bristle_rate(slip, zb, cl[i, L_MU_A], cl[i, L_MU_S], vt, cl[i, L_SIG0])
+            zload = True
+            # bristle damping only near sticking (else it would add viscous friction)
+            r = slip / vt
+            ft = -fn * (cl[i, L_SIG0] * zb + cl[i, L_SIG1] * math.exp(-r * r) * zbd)
+        elif fn > 0.0 and cl[i, L_MU_A] > 0.0:
             mu = friction_coefficient(slip, cl[i, L_MU_A], cl[i, L_B1], cl[i, L_B2], cl[i, L_VT])
             ft = -fn * mu
         if fn > 0.0 and forces:
@@ -429,6 +475,7 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, forces=True):
         cout[i, O_SLIP] = slip
         cout[i, O_PX] = px
         cout[i, O_PY] = py
+    return zrate, zload
 
 
 @njit(cache=True, inline="always")
@@ -601,7 +648,8 @@ def accelerations(t, y, f_key, model, ws, full):
         Q[QV1] -= ej * (4.0 * ln * v1 + 6.0 * ln * ln * v2)
         Q[QV2] -= ej * (6.0 * ln * ln * v1 + 12.0 * ln * ln * ln * v2)
     # contacts
-    contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full)
+    zrate, zload = contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, q[QZ], qd[QZ],
+                            sp[S_ZOPEN])
     # pin-joint friction and springs
     for jn in range(6):
         c = JOINT_COORD[jn]
@@ -622,7 +670,16 @@ def accelerations(t, y, f_key, model, ws, full):
         for c in range(QU1, QV2 + 1):
             M[c, c] = 1.0
             Q[c] = 0.0
-    for blk in range(3):
+    # the bristle deflection: its rate relaxes to the law's within S_ZTAU under load, and
+    # as slowly as the bristles recover while the contact is open (which keeps the stiff
+    # -1/S_ZTAU out of the Jacobian there, so explicit steps stay possible); frozen
+    # without the law
+    M[QZ, QZ] = 1.0
+    if sp[S_BRISTLE] > 0.5:
+        Q[QZ] = (zrate - qd[QZ]) / (sp[S_ZTAU] if zload else sp[S_ZOPEN])
+    else:
+        Q[QZ] = 0.0
+    for blk in range(4):
         _solve(M, Q, qdd, BLOCKS[blk][0], BLOCKS[blk][1])
     return qdd
 
@@ -654,7 +711,8 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     for r in range(Y.shape[0]):
         y = Y[r]
         kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
-        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True, False)
+        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True, y[QZ], y[NQ + QZ],
+                 sp[S_ZOPEN], False)
         for i in range(cout.shape[0]):
             for j in range(N_CONTACT_OUT):
                 cout_all[j, r, i] = cout[i, j]

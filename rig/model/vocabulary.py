@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from rig.model import kernel as k
 
-COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2")
+COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2",
+               "z_b")
 ANGLE_CHANNELS = {
     "key_angle": k.QK,
     "whippen_angle": k.QW,
