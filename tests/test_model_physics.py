@@ -146,9 +146,9 @@ def _contact_moment(model, y, cid, fn, px, pivot):
     q, qd = y[: k.NQ], y[k.NQ :]
     org, phi, w, vO, JO, Jp, aO, al, cs = ws[:9]
     arrays = model.packed.arrays
-    k.kinematics(q, qd, arrays[0], arrays[1], org, phi, w, vO, JO, Jp, aO, al, cs)
+    k.kinematics(q, qd, arrays.sp, arrays.sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     i = model.packed.contact_ids.index(cid)
-    f1, f2, pen, nx, ny, cx, cy = k.contact_geometry(arrays[2], i, org, phi, cs)
+    f1, f2, pen, nx, ny, cx, cy = k.contact_geometry(arrays.cf, i, org, phi, cs)
     assert cx == pytest.approx(px)
     sign = 1.0 if f2 in (k.F_HAMMER, k.F_HEAD) else -1.0
     fx, fy = sign * fn * nx, sign * fn * ny

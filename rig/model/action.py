@@ -231,7 +231,7 @@ class ActionModel:
         self.active = np.ones(k.NQ, dtype=bool)
         self.active[k.QYK] = build.flags["liftoff"]
         self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
-        self.active[k.QZ] = self.packed.arrays[0][k.S_BRISTLE] > 0.5
+        self.active[k.QZ] = self.packed.arrays.sp[k.S_BRISTLE] > 0.5
         pts = build.params.tree["points"]
         self._head_pt = np.array(pts["hammer_head"][HEAD_STRIKE_POINT]["at"], dtype=float)
         beam = build.params.tree["hammer_shank_beam"]
@@ -249,7 +249,7 @@ class ActionModel:
                                liftoff=build.flags["liftoff"] if liftoff is None else liftoff,
                                flexible_shank=build.flags["flexible_shank"])
         for (cid, col), value in build.contact_overrides.items():
-            packed.arrays[3][packed.contact_ids.index(cid), col] = value
+            packed.arrays.cl[packed.contact_ids.index(cid), col] = value
         return packed
 
     # -- construction from files ------------------------------------------------
@@ -340,7 +340,7 @@ class ActionModel:
         h.update(repr([e.describe() for e in self.python_forces]).encode())
         return h.digest()
 
-    def workspace(self) -> tuple[np.ndarray, ...]:
+    def workspace(self) -> k.Workspace:
         return k.make_workspace(self.packed.n_frames, self.packed.n_contacts)
 
     def _table_state(self) -> np.ndarray:
@@ -393,7 +393,7 @@ class ActionModel:
         return restcache.key(kind, [equations, self._table_state(), self.atol, settle,
                                     *(c for c in code if c is not None)])
 
-    def _settle(self, arrays: tuple[np.ndarray, ...] | None = None) -> np.ndarray:
+    def _settle(self, arrays: k.Model | None = None) -> np.ndarray:
         """The state after 0.4 s under gravity from Table 3.2 (friction and damping remove
         the energy), velocities zeroed."""
         extra = self.extra_force()
@@ -408,7 +408,7 @@ class ActionModel:
         y[k.NQ : k.NY] = 0.0
         return y
 
-    def _polish(self, y: np.ndarray, arrays: tuple[np.ndarray, ...] | None = None,
+    def _polish(self, y: np.ndarray, arrays: k.Model | None = None,
                 active: np.ndarray | None = None) -> np.ndarray:
         """Solve accelerations (and effect states' rates) = 0 at zero velocity from y."""
         arrays = arrays or self.packed.arrays
@@ -422,9 +422,9 @@ class ActionModel:
             yy = y.copy()
             yy[idx] = x
             if extra is not None:
-                ws[k.WS_EXTRA][:], dy[k.NY :] = extra(0.0, yy)
+                ws.qx[:], dy[k.NY :] = extra(0.0, yy)
             k.rhs(0.0, yy, 0.0, arrays, ws, dy)
-            ws[k.WS_EXTRA][:] = 0.0
+            ws.qx[:] = 0.0
             return np.r_[dy[k.NQ + idx[idx < k.NQ]], dy[k.NY :]]
 
         from scipy.optimize import least_squares  # (lazy: 0.7 s of import, rarely needed)
@@ -452,7 +452,7 @@ class ActionModel:
         spec = next(c for c in self.build.params.tree["contacts"] if int(c["id"]) == 14)
         refs = (str(spec["first"]), str(spec["second"]))
         sides = [i for i, ref in enumerate(refs) if ref.startswith("ground.")]
-        if not sides or not np.any(self.packed.arrays[3][row, [k.L_A, k.L_B, k.L_C]] > 0):
+        if not sides or not np.any(self.packed.arrays.cl[row, [k.L_A, k.L_B, k.L_C]] > 0):
             return  # no ground feature, or a rail without stiffness: nothing to place
         side = sides[0]
         key = self._digest()
@@ -472,7 +472,7 @@ class ActionModel:
         x, y = self.build.params.get(path)
         self.build.params.set(path, [x, y + offset])
         self.packed = self._pack()
-        self.balance_rail = {"y_m": float(self.packed.arrays[2][row, side, k.C_Y]),
+        self.balance_rail = {"y_m": float(self.packed.arrays.cf[row, side, k.C_Y]),
                              "offset_m": offset}
         if all(np.array_equal(a, b) for a, b in zip(solved, self.packed.arrays, strict=True)):
             self._rest = rest.copy()  # (else another contact shares the point: solve again)
@@ -484,15 +484,15 @@ class ActionModel:
         fixed[k.QYK] = False
         y = self._polish(self._settle(revolute.arrays), revolute.arrays, fixed)
         y[k.QYK] = 0.0
-        arrays = tuple(a.copy() for a in self.packed.arrays)
-        base = float(arrays[2][row, side, k.C_Y])
+        arrays = k.Model(*(a.copy() for a in self.packed.arrays))
+        base = float(arrays.cf[row, side, k.C_Y])
         ws, dy = self.workspace(), np.zeros(k.NY)
         extra = self.extra_force()
         q_force = extra(0.0, y)[0] if extra is not None else np.zeros(k.NQ)
 
         def lift_acceleration(offset: float) -> float:
-            arrays[2][row, side, k.C_Y] = base + offset
-            ws[k.WS_EXTRA][:] = q_force
+            arrays.cf[row, side, k.C_Y] = base + offset
+            ws.qx[:] = q_force
             k.rhs(0.0, y[: k.NY], 0.0, arrays, ws, dy)
             return float(dy[k.NQ + k.QYK])
 
@@ -504,7 +504,7 @@ class ActionModel:
         from scipy.optimize import brentq
 
         offset = float(brentq(lift_acceleration, lo, hi, xtol=1e-14, rtol=1e-12))
-        arrays[2][row, side, k.C_Y] = base + offset
+        arrays.cf[row, side, k.C_Y] = base + offset
         return offset, self._polish(y, arrays)
 
     # -- simulation --------------------------------------------------------------------
@@ -648,7 +648,7 @@ class ActionModel:
         for e in self.effects:
             e.add_channels(res)
         # events are facts of the mechanism: found before sensor effects alter channels
-        cl = self.packed.arrays[3]
+        cl = self.packed.arrays.cl
         damping = {cid: (0.0 if int(cl[i, k.L_TYPE]) == k.LAW_HYSTERETIC else float(cl[i, k.L_D]))
                    for i, cid in enumerate(self.packed.contact_ids)}
         res.events = find_events(res, damping=damping)

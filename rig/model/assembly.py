@@ -29,9 +29,9 @@ N_GAUSS = 4  # exact for the beam's linear mass matrix (integrands up to xi^6)
 
 @dataclass(frozen=True)
 class Packed:
-    """The kernel's view of one model: a tuple of arrays plus names."""
+    """The kernel's view of one model (kernel.Model, named arrays) plus names."""
 
-    arrays: tuple[np.ndarray, ...]
+    arrays: k.Model
     contact_ids: tuple[int, ...]
     contact_names: tuple[str, ...]
     n_frames: int
@@ -196,37 +196,37 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     beam_pts = np.column_stack([xi, rho * beam["area"] * wxi, rho * beam["Jzz"] * wxi])
 
     n_frames = k.N_RIGID_FRAMES + len(sections) + 1  # + scratch frame for beam particles
-    arrays = (sp, np.array(sections, dtype=float), cf, cl, jf, me, beam_pts)
+    arrays = k.Model(sp, np.array(sections, dtype=float), cf, cl, jf, me, beam_pts)
     omega1 = shank_first_mode(arrays, n_frames, params) if flexible_shank else 0.0
     if flexible_shank and omega1 > 0:
         sp[k.S_BETA] = 2.0 * t["hammer_shank_damping"]["ratio"] / omega1
     return Packed(arrays, tuple(ids), tuple(names), n_frames, omega1)
 
 
-def shank_first_mode(arrays: tuple[np.ndarray, ...], n_frames: int, params: Parameters) -> float:
+def shank_first_mode(arrays: k.Model, n_frames: int, params: Parameters) -> float:
     """First bending frequency (rad/s) of the hammer pinned at its flange, in free flight.
 
     Linearization of the hammer block (theta_h, u1, v1, v2) about the rest angle:
     mass matrix from the kernel, stiffness from the beam's strain energy.
     """
-    sp = arrays[0]
-    ws = k.make_workspace(n_frames, arrays[2].shape[0])
+    sp = arrays.sp
+    ws = k.make_workspace(n_frames, arrays.cf.shape[0])
     y = np.zeros(k.NY)
     y[k.QH] = params.get("initial_state.theta_h")
     org, phi, w, vO, JO, Jp, aO, al, cs, M, Q, cout, qdd, _qx, _jb = ws
-    k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays[1], org, phi, w, vO, JO, Jp, aO, al, cs)
+    k.kinematics(y[: k.NQ], y[k.NQ :], sp, arrays.sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     idx = [k.QH, k.QU1, k.QV1, k.QV2]
     mm = np.zeros((k.NQ, k.NQ))
     qq = np.zeros(k.NQ)
-    for e in range(arrays[5].shape[0]):
-        f, m, inertia, cx, cy = arrays[5][e]
+    for e in range(arrays.me.shape[0]):
+        f, m, inertia, cx, cy = arrays.me[e]
         k.mass_element(int(f), m, inertia, cx, cy, 0.0, cs, w, JO, Jp, aO, al, mm, qq)
     kf = org.shape[0] - 1
     ch, sh = math.cos(y[k.QH]), math.sin(y[k.QH])
-    for p in range(arrays[6].shape[0]):
-        k.beam_section(arrays[6][p, 0], y[: k.NQ], y[k.NQ :], sp, kf, org, phi, w, vO, JO, Jp,
+    for p in range(arrays.beam.shape[0]):
+        k.beam_section(arrays.beam[p, 0], y[: k.NQ], y[k.NQ :], sp, kf, org, phi, w, vO, JO, Jp,
                         aO, al, cs, ch, sh, False)
-        k.mass_element(kf, arrays[6][p, 1], arrays[6][p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
+        k.mass_element(kf, arrays.beam[p, 1], arrays.beam[p, 2], 0.0, 0.0, 0.0, cs, w, JO, Jp,
                         aO, al, mm, qq)
     mh = mm[np.ix_(idx, idx)]
     ln, ea, ej = sp[k.S_L], sp[k.S_EA], sp[k.S_EJ]

@@ -127,7 +127,7 @@ class Fingertip(Effect):
 
         self._motion = None  # the rest state is found without the finger (pulp relaxed)
         rest = model.keytop_rest()
-        sp = model.packed.arrays[0]
+        sp = model.packed.arrays.sp
         t = np.asarray(profile.time, float)
         d = np.asarray(profile.force, float)
         slope = np.diff(d) / np.diff(t)

@@ -285,7 +285,7 @@ class Integrator(Protocol):
 
     name: str
 
-    def advance(self, model: tuple[np.ndarray, ...], ws: tuple[np.ndarray, ...],
+    def advance(self, model: k.Model, ws: k.Workspace,
                 y0: np.ndarray, t0: float, t1: float, step: float, force_t: np.ndarray,
                 force_f: np.ndarray, out_t: np.ndarray, atol: np.ndarray,
                 extra_force: ExtraForce | None = None) -> Advance: ...
@@ -353,7 +353,7 @@ class ScipyIntegrator:
         hint = np.zeros(1, dtype=np.int64)
         dy = np.empty_like(y0)
         counter = [0]
-        qx = ws[k.WS_EXTRA]
+        qx = ws.qx
 
         def fun(t: float, y: np.ndarray) -> np.ndarray:
             counter[0] += 1

@@ -539,11 +539,11 @@ class Rosenbrock:
         return Advance(y, out[:nfill], h, steps, rej, nrhs, status)
 
 
-def _active(model: tuple[np.ndarray, ...], n_state: int) -> np.ndarray:
+def _active(model: k.Model, n_state: int) -> np.ndarray:
     """Indices of the coordinates that move (the others are frozen by the model's flags)."""
     if n_state != k.NY:
         raise InputError(f"y0: expected {k.NY} states, got {n_state}")
-    sp = model[0]
+    sp = model.sp
     active = np.ones(k.NQ, dtype=bool)
     active[k.QYK] = sp[k.S_LIFTOFF] > 0.5
     active[k.QU1 : k.QV2 + 1] = sp[k.S_FLEX] > 0.5

@@ -33,6 +33,7 @@ as plain Python/numpy (the reference implementation of the benchmark).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -537,28 +538,46 @@ def _solve(M, b, x, lo, n):
         x[r] = acc / M[r, r]
 
 
-# position of the extra generalized forces in the workspace
-WS_EXTRA = 13
+class Model(NamedTuple):
+    """The kernel's view of one model (rig.model.assembly.pack builds it)."""
+
+    sp: np.ndarray      # scalar parameters, slots S_*
+    sec_xi: np.ndarray  # shank sections carrying contact features: distance from the root (m)
+    cf: np.ndarray      # contact features [contact, side, C_*]
+    cl: np.ndarray      # contact laws [contact, L_*]
+    jf: np.ndarray      # pin-joint friction [joint (JOINT_COORD), (E, F1, F2, w_t)]
+    me: np.ndarray      # rigid mass elements [element, (frame, m, I, cx, cy)]
+    beam: np.ndarray    # the shank's Gauss points [point, (xi, m dxi, rho J dxi)]
 
 
-def make_workspace(n_frames: int, n_contacts: int) -> tuple[np.ndarray, ...]:
+class Workspace(NamedTuple):
+    """Scratch arrays for one evaluation (make_workspace allocates them once per run)."""
+
+    org: np.ndarray   # frame origins (m)
+    phi: np.ndarray   # frame angles (rad)
+    w: np.ndarray     # frame angular velocities (rad/s)
+    vO: np.ndarray    # origin velocities (m/s)
+    JO: np.ndarray    # origin Jacobians [frame, xy, coordinate]
+    Jp: np.ndarray    # angle Jacobians [frame, coordinate]
+    aO: np.ndarray    # origin bias accelerations
+    al: np.ndarray    # angle bias accelerations
+    cs: np.ndarray    # cos, sin of each frame's angle
+    M: np.ndarray     # mass matrix
+    Q: np.ndarray     # generalized forces
+    cout: np.ndarray  # per-contact outputs [contact, O_*]
+    qdd: np.ndarray   # generalized accelerations
+    qx: np.ndarray    # extra generalized forces (set by Python-level effects)
+    jb: np.ndarray    # a shank particle's Jacobian columns (x, y, angle)
+
+
+def make_workspace(n_frames: int, n_contacts: int) -> Workspace:
     """Scratch arrays for one evaluation (allocated once per integration)."""
-    return (
-        np.zeros((n_frames, 2)),  # org
-        np.zeros(n_frames),  # phi
-        np.zeros(n_frames),  # w
-        np.zeros((n_frames, 2)),  # vO
-        np.zeros((n_frames, 2, NQ)),  # JO
-        np.zeros((n_frames, NQ)),  # Jp
-        np.zeros((n_frames, 2)),  # aO
-        np.zeros(n_frames),  # al
-        np.zeros((n_frames, 2)),  # cos, sin of each frame's angle
-        np.zeros((NQ, NQ)),  # M
-        np.zeros(NQ),  # Q
-        np.zeros((n_contacts, N_CONTACT_OUT)),  # contact outputs
-        np.zeros(NQ),  # qdd
-        np.zeros(NQ),  # extra generalized forces (set by Python-level effects)
-        np.zeros((3, 4)),  # a shank particle's Jacobian columns (x, y, angle)
+    return Workspace(
+        np.zeros((n_frames, 2)), np.zeros(n_frames), np.zeros(n_frames),
+        np.zeros((n_frames, 2)), np.zeros((n_frames, 2, NQ)), np.zeros((n_frames, NQ)),
+        np.zeros((n_frames, 2)), np.zeros(n_frames), np.zeros((n_frames, 2)),
+        np.zeros((NQ, NQ)), np.zeros(NQ), np.zeros((n_contacts, N_CONTACT_OUT)),
+        np.zeros(NQ), np.zeros(NQ), np.zeros((3, 4)),
     )
 
 
