@@ -304,11 +304,8 @@ def regulate(
 ) -> None:
     """The model's regulation as a technician measures it (a slow key press), in mm; with
     --to, the regulating adjustments that meet the targets, written to --write."""
-    import yaml
-
-    from rig.model import regulation
+    from rig.model import modelfile, regulation
     from rig.model.action import ActionModel
-    from rig.params import load_yaml_file
 
     try:
         if write is not None and to is None:
@@ -317,10 +314,12 @@ def regulate(
             raise InputError(f"{write}: exists (use --force to overwrite)")
         m = ActionModel.from_yaml(model) if model else ActionModel()
         targets = regulation.load_targets(to) if to is not None else {}
-        base = load_yaml_file(model) if model else None
         if to is not None:
             points, figures = regulation.solve(m.params, targets, m.effect_names)
-            data = regulation.regulated_model_yaml(base, points, to)
+            base, base_dir = modelfile.read(model)
+            out_dir = write.resolve().parent if write is not None else base_dir
+            data = regulation.regulated_model_yaml(modelfile.rebased(base, base_dir, out_dir),
+                                                   points, to)
         else:
             figures = regulation.measure(m)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
@@ -336,7 +335,7 @@ def regulate(
             console.print(f"adjusted {path}: y = {at[1] * 1e3:.3f} mm", markup=False,
                           highlight=False, soft_wrap=True)
     if write is not None:
-        write.write_text(yaml.safe_dump(data, sort_keys=False))
+        modelfile.write(data, write)
         console.print(f"wrote {write}", markup=False, highlight=False, soft_wrap=True)
 
 

@@ -53,7 +53,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 
 from rig.analysis import compare as cp
 from rig.analysis import fit as ft
@@ -62,6 +61,7 @@ from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
+from rig.model import modelfile
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect
 
@@ -863,21 +863,11 @@ def write_model(base_yaml: Path | None, diagnosis: Diagnosis | Candidate, out: P
         final, names, gain = diagnosis, list(diagnosis.effects or (diagnosis.name,)), \
             diagnosis.removal
     refs = dict(refs or {})
-    data: dict[str, Any] = {}
-    base_dir = Path.cwd()
-    if base_yaml is not None:
-        loaded = yaml.safe_load(Path(base_yaml).read_text()) or {}
-        if not isinstance(loaded, dict):
-            raise InputError(f"{base_yaml}: expected a model mapping")
-        data = loaded
-        base_dir = Path(base_yaml).resolve().parent
+    base, base_dir = modelfile.read(base_yaml)
     out = Path(out)
     out_dir = out.resolve().parent
-    if isinstance(data.get("parameters"), str):
-        data["parameters"] = _rel(base_dir / data["parameters"], out_dir)
-    effects = []
-    for e in data.get("effects") or []:
-        effects.append(_rebase_effect(e, base_dir, out_dir))
+    data = modelfile.rebased(base, base_dir, out_dir)
+    effects = list(data.get("effects") or [])
     for n in names:
         vals = {k.split(".", 1)[1]: stats.round_to(float(v), final.sigma.get(k, math.nan))
                 for k, v in final.values.items() if k.startswith(n + ".")}
@@ -887,28 +877,13 @@ def write_model(base_yaml: Path | None, diagnosis: Diagnosis | Candidate, out: P
         ref = refs.get(n, n)
         target, sep, cls = ref.rpartition(":")
         if sep and target.endswith(".py"):
-            ref = f"{_rel(Path(target), out_dir)}:{cls}"
+            ref = f"{modelfile.relative(Path(target), out_dir)}:{cls}"
         effects.append({ref: vals} if vals else ref)
     data["effects"] = effects
     desc = str(data.get("description", "")).strip()
     data["description"] = (desc + "\n" if desc else "") + (
         f"rig diagnose added {' + '.join(names)} (held-out error "
         + (f"removed {gain * 100:.1f} %)" if gain >= 0 else "worse)"))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(yaml.safe_dump(data, sort_keys=False))
-    return out
+    return modelfile.write(data, out)
 
 
-def _rel(path: Path, start: Path) -> str:
-    import os
-
-    return os.path.relpath(path.resolve(), start)
-
-
-def _rebase_effect(spec: Any, base_dir: Path, out_dir: Path) -> Any:
-    name = next(iter(spec)) if isinstance(spec, dict) else spec
-    if not isinstance(name, str) or ".py:" not in name:
-        return spec
-    file, _, cls = name.rpartition(":")
-    new = f"{_rel(base_dir / file, out_dir)}:{cls}"
-    return {new: spec[name]} if isinstance(spec, dict) else new

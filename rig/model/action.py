@@ -28,7 +28,7 @@ import numpy as np
 
 from rig import profiles as _profiles
 from rig.errors import InputError
-from rig.model import assembly, restcache
+from rig.model import assembly, modelfile, restcache
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
 from rig.model.integration import by_name
@@ -42,7 +42,7 @@ from rig.model.vocabulary import (  # noqa: E402,F401 - the vocabulary, re-expor
     EVENT_ORDER,
     KEY_MOVE_THRESHOLD_M,
 )
-from rig.params import Parameters, load_yaml_file
+from rig.params import Parameters
 
 # rest states by equations_key: models with identical equations (a fit varying an input
 # or sensor parameter) settle the action once
@@ -256,26 +256,9 @@ class ActionModel:
     @classmethod
     def from_yaml(cls, path: str | Path | None, *, effects: Sequence[str] = (),
                   integrator: str | None = None) -> ActionModel:
-        """A model from a model YAML (parameters, effects, integrator); extra effects appended.
-
-        The file may hold ``parameters`` (a file path or a mapping of overrides),
-        ``effects`` (names, ``{name: {param: value}}``, ``module:Class`` or
-        ``file.py:Class``) and ``integrator`` (``{name: dopri54, rtol: 1e-6}``).
-        """
-        data: Mapping[str, Any] = {}
-        base = Path.cwd()
-        if path is not None:
-            p = Path(path)
-            loaded = load_yaml_file(p)
-            if loaded is not None and not isinstance(loaded, Mapping):
-                raise InputError(f"{p}: expected a mapping with parameters, effects, integrator")
-            data = loaded or {}
-            base = p.parent
-            unknown = sorted(set(map(str, data)) - {"parameters", "effects", "integrator",
-                                                    "description"})
-            if unknown:
-                raise InputError(f"{p}: {unknown[0]}: unknown key (expected parameters, "
-                                 f"effects, integrator, description)")
+        """A model from a model YAML (rig.model.modelfile: parameters, effects, integrator);
+        extra effects appended."""
+        data, base = modelfile.read(path)
         params = Parameters.default()
         pspec = data.get("parameters")
         if isinstance(pspec, str):
@@ -285,8 +268,6 @@ class ActionModel:
         elif pspec is not None:
             raise InputError(f"{path}: parameters: expected a file name or a mapping")
         eff = list(data.get("effects") or [])
-        if not isinstance(data.get("effects") or [], list):
-            raise InputError(f"{path}: effects: expected a list")
         eff.extend(e for e in effects if e not in eff)
         model = cls(params, eff, None, base_dir=base)
         ispec = data.get("integrator")

@@ -6,11 +6,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.errors import InputError
+from rig.model import modelfile
 from rig.model.action import ActionModel
 from rig.model.effects import make
 
@@ -42,19 +41,14 @@ def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
     """The model YAML with the fitted values: effect values in ``effects``, model parameters
     as overrides in ``parameters`` (a parameter file reference is kept as is and must then
     not be combined with fitted model parameters)."""
-    from rig.analysis.diagnose import _rebase_effect, _rel
-
-    data: dict[str, Any] = {}
-    base_dir = Path.cwd()
-    if model_file is not None:
-        data = yaml.safe_load(Path(model_file).read_text()) or {}
-        base_dir = Path(model_file).resolve().parent
+    base, base_dir = modelfile.read(model_file)
     out_dir = Path(out).resolve().parent
-    listed = data.get("effects") or []
+    listed = base.get("effects") or []
     # each listed effect's own name (a user effect is listed as path.py:Class or
     # module:Class, its name is the class's ``name``)
     names = [make(e, base_dir).name for e in listed]
-    effects = [_rebase_effect(e, base_dir, out_dir) for e in listed]
+    data = modelfile.rebased(base, base_dir, out_dir)
+    effects = list(data.get("effects") or [])
     for t in res.targets:
         v = float(res.values[t.label])
         if t.effect is None:
@@ -78,9 +72,5 @@ def write_model(model_file: Path | None, res: ft.FitResult, out: Path) -> Path:
                 vals[t.key] = v
                 effects[i] = {name: vals}
                 break
-    if isinstance(data.get("parameters"), str):
-        data["parameters"] = _rel(base_dir / data["parameters"], out_dir)
     data["effects"] = effects
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
-    Path(out).write_text(yaml.safe_dump(data, sort_keys=False))
-    return Path(out)
+    return modelfile.write(data, out)
