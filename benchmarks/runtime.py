@@ -51,6 +51,7 @@ import numpy as np
 
 from rig import calrecords, config, pacing, runfile
 from rig.acquisition import Acquisition
+from rig.calibration import records
 from rig.services import run as svc
 
 DT = 0.002  # 500 Hz
@@ -258,7 +259,7 @@ def _sched(priority: float) -> str:
 def acquisition_benchmark(tmp: Path, seconds: float = 5.0) -> None:
     """Store blocks as fast as possible through the acquisition's own write path."""
     cfg = config.builtin_sim()
-    cals = calrecords.lookup(cfg)
+    cals = records.lookup(cfg)
     width = len(calrecords.raw_names(cfg))
     w = runfile.RunWriter(tmp / "acq.h5", "measured", {}, crash_safe=True)
 
@@ -268,14 +269,14 @@ def acquisition_benchmark(tmp: Path, seconds: float = 5.0) -> None:
             raise queue.Empty
 
     acq = Acquisition(cfg, cals, w, Q(), None)
-    acq._handle(("trial", 0, 0, 0))
+    acq.handle(("trial", 0, 0, 0))
     block = 40  # 20 ms at 2 kHz, the default read period
     n = 0
     t0 = time.perf_counter()
     last_flush = t0
     while time.perf_counter() - t0 < seconds:
         rows = np.zeros((block, width))
-        rows[:, 0] = n + np.arange(block)
+        rows[:, acq.sample_col] = n + np.arange(block)
         acq.take(rows)
         n += block
         if time.perf_counter() - last_flush > 0.25:
