@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": "sim"}})
 HZ = 500.0
 NOISE = CFG.sim.load_cell_noise_n
+P_TYPE = False
 
 
 def fmt(m: dict[str, float], k: dict[str, float]) -> str:
@@ -45,7 +46,8 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
     def play(u: np.ndarray, k: int = 0) -> offline.TrialResult:
         return offline.play(u, variant=variant, noise_n=noise, jitter_s=jitter,
                             gain=1.0 - drift * k / max(trials - 1, 1), rng=rng,
-                            controller=feedback.LoadCellPI() if pi else None)
+                            controller=feedback.LoadCellPI() if pi else None,
+                            reference=r)
 
     label = (f"{name:8s} {variant:10s} {'PI' if pi else '--':2s} noise {noise:.2f} N jitter "
              f"{jitter * 1e3:.0f} ms drift {drift * 100:.0f} % gain x{factor:g}")
@@ -58,16 +60,18 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
         res = play(u)
         errs = ilc.errors(r, res.measured, p.peak), ilc.errors(r, res.key_force, p.peak)
         print(f"  {what:14s} {fmt(*errs)}")
+    models = () if P_TYPE else None
     lrn = ilc.Learner.start(r, adv, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
-                            HZ, noise_n=noise)
+                            HZ, noise_n=noise, models=models, step=factor,
+                            controller=feedback.LoadCellPI() if pi else None)
     limited = 0
     keys = []
     for k in range(trials):
         res = play(lrn.u, k)
         limited += res.limited if not pi else 0
         keys.append(ilc.errors(r, res.key_force, p.peak))
-        m = lrn.update(res.measured)
-        print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}")
+        m = lrn.update(res.measured, res.demand)
+        print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}  {lrn.notes[-1]}")
         if lrn.stopped:
             print(f"  stopped: {lrn.stopped}")
             break

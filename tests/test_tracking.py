@@ -28,46 +28,87 @@ def grid(name: str) -> tuple[profiles.Profile, np.ndarray, np.ndarray]:
 
 
 def learn(name: str, variant: str, trials: int = 5, factor: float = 1.0, noise: float = NOISE,
-          jitter: float = 0.0, drift: float = 0.0, seed: int = 1):
+          jitter: float = 0.0, drift: float = 0.0, seed: int = 1, pi: bool = False,
+          models=None):
     p, r, u0 = grid(name)
     lrn = ilc.Learner.start(r, u0, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
-                            HZ, noise_n=noise)
+                            HZ, noise_n=noise, step=factor, models=models,
+                            controller=feedback.LoadCellPI() if pi else None)
     rng = np.random.default_rng(seed)
     keys, tables = [], []
     for k in range(trials):
         tables.append(lrn.u.copy())
         res = offline.play(lrn.u, variant=variant, noise_n=noise, jitter_s=jitter,
-                           gain=1.0 - drift * k / max(trials - 1, 1), rng=rng)
-        assert res.limited == 0  # no learned demand is cut by the loop's limiter
+                           gain=1.0 - drift * k / max(trials - 1, 1), rng=rng,
+                           controller=feedback.LoadCellPI() if pi else None, reference=r)
+        if not pi:
+            assert res.limited == 0  # no learned demand is cut by the loop's limiter
         keys.append(ilc.errors(r, res.key_force, p.peak))
-        lrn.update(res.measured)
+        lrn.update(res.measured, res.demand)
         if lrn.stopped:
             break
     return p, lrn, keys, tables
 
 
+def best_key(lrn, keys):
+    _, best = lrn.result()
+    return best, keys[int(best["trial"]) - 1]
+
+
 @pytest.mark.parametrize("name", ["forte", "two-peak"])
 @pytest.mark.parametrize("variant", ["single", "step_size"])
-def test_learns_to_within_3_percent_in_five_trials(variant, name):
+def test_learns_the_key_force_to_within_2_percent_in_five_trials(variant, name):
     p, lrn, keys, _ = learn(name, variant)
-    best_u, best = lrn.result()
-    first = lrn.history[0]
-    assert first["max_pct"] > 6.0  # the open-loop 8 ms advance: the thesis's ~6.5 %
-    assert best["max_pct"] <= 3.0 and best["rms_pct"] <= 1.0
-    k = keys[int(best["trial"]) - 1]
-    assert k["rms_pct"] <= 1.0
-    # the true key force: <= 2 % on two-peak; on forte 1.9-2.2 % depending on the noise's
-    # seed (the sharp corners of the 375 N/s ramps against the 100 Hz Q filter): a known gap
-    assert k["max_pct"] <= (2.0 if name == "two-peak" else 2.5)
+    best, k = best_key(lrn, keys)
+    assert lrn.history[0]["max_pct"] > 6.0  # the open-loop 8 ms advance: the thesis's ~6.5 %
+    # issue 18: the true key force within 2 % (max) and 1 % (RMS) of the peak
+    assert k["max_pct"] <= 2.0 and k["rms_pct"] <= 1.0
+    # the load cell (noise included: 0.22 N is 0.9 % of two-peak's 24 N; its maximum over
+    # 300 cycles alone is ~3 sigma = 2.8 %): within 3 % + 1 sigma and RMS 1.2 %
+    assert best["max_pct"] <= 3.0 + 100 * NOISE / p.peak and best["rms_pct"] <= 1.2
+
+
+@pytest.mark.parametrize("name", ["forte", "two-peak"])
+def test_learns_the_asymmetric_drive_through_its_rise_fall_model(name):
+    # the drive switches between the thesis's rise and fall models with the demand's
+    # direction (issue 18's case a): a linear update did not learn it (forte 32.8 % ->
+    # 15.5 %, two-peak not improved); the Newton-type update through the rise/fall model
+    p, lrn, keys, _ = learn(name, "asymmetric")
+    best, k = best_key(lrn, keys)
+    assert keys[0]["max_pct"] > 12.0
+    assert "rise/fall" in lrn.notes[0]               # the model that explains the trial
+    assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 1.0
+    assert best["rms_pct"] <= 1.2
+
+
+def test_the_linear_p_type_update_does_not_learn_the_asymmetric_drive():
+    # what the model-based update is for: the P-type update (models=()) stays far off
+    _, lrn, keys, _ = learn("forte", "asymmetric", models=())
+    assert "P-type" in lrn.notes[0]
+    assert best_key(lrn, keys)[1]["max_pct"] > 10.0
+
+
+@pytest.mark.parametrize("variant", ["single", "asymmetric"])
+def test_piano_learning_does_not_make_the_key_force_worse(variant):
+    # peak 1.2 N, 5x the load cell's noise: the error is mostly noise; the noise-aware update
+    # learns only what stands out of it (averaging trials played with the same table)
+    p, lrn, keys, _ = learn("piano", variant)
+    best, k = best_key(lrn, keys)
+    floor = 100 * NOISE / p.peak                      # 1 x noise = 18.3 % of the peak
+    assert k["max_pct"] <= keys[0]["max_pct"] + 0.1 * floor
+    assert k["rms_pct"] <= keys[0]["rms_pct"] + 0.05 * floor
+    assert k["max_pct"] <= floor and k["rms_pct"] <= 0.5 * floor
+    assert any("within the noise" in n for n in lrn.notes)
 
 
 def test_every_learned_table_is_within_the_limits():
-    _, lrn, _, tables = learn("forte", "single")
-    dt = 1 / HZ
-    for u in tables + [lrn.u]:
-        assert u.min() >= 0 and u.max() <= CFG.limits.max_force_n
-        steps = np.abs(np.diff(np.r_[0.0, u, 0.0]))
-        assert steps.max() <= CFG.limits.max_rate_n_per_s * dt + 1e-9
+    for variant in ("single", "asymmetric"):
+        _, lrn, _, tables = learn("forte", variant)
+        dt = 1 / HZ
+        for u in tables + [lrn.u]:
+            assert u.min() >= 0 and u.max() <= CFG.limits.max_force_n
+            steps = np.abs(np.diff(np.r_[0.0, u, 0.0]))
+            assert steps.max() <= CFG.limits.max_rate_n_per_s * dt + 1e-9
 
 
 def test_limit_table_clips_force_and_rate():
@@ -90,11 +131,32 @@ def test_forte_learning_is_robust(case):
     # twice the noise, 1 ms jitter, the drive's gain drifting down 10 % over the 5 trials:
     # still learns (a later trial is the best) to within twice the nominal criteria
     _, lrn, keys, _ = learn("forte", "single", **case)
-    _, best = lrn.result()
-    assert best["trial"] > 1
+    best, k = best_key(lrn, keys)
+    assert best["trial"] > 1 and lrn.stopped is None
     assert best["max_pct"] <= 6.0 and best["rms_pct"] <= 2.0
-    if "drift" not in case:  # with the drift the key force's max error is 4.3 % (issue 18 gap)
-        assert keys[int(best["trial"]) - 1]["max_pct"] <= 4.0
+    assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 2.0
+
+
+def test_a_drifting_gain_is_re_estimated_and_extrapolated():
+    _, lrn, _, _ = learn("forte", "single", drift=0.10)
+    gains = [h["model_gain"] for h in lrn.history]
+    np.testing.assert_allclose(gains, [1.0, 0.975, 0.95, 0.925, 0.9], atol=0.006)
+    assert lrn.history[-1]["predicted_gain"] == pytest.approx(0.875, abs=0.006)
+    _, steady, _, _ = learn("forte", "single")      # no drift: no extrapolation
+    assert all(h["predicted_gain"] == h["model_gain"] for h in steady.history
+               if "predicted_gain" in h)
+
+
+def test_load_cell_pi_with_learning_is_not_worse_than_learning_alone():
+    # issue 18 case c: the PI compares the load cell with the profile (target_n), and the
+    # update inverts the closed loop (LoadCellPI.lifted)
+    _, alone, k_alone, _ = learn("forte", "single")
+    _, both, k_both, _ = learn("forte", "single", pi=True)
+    ka, kb = best_key(alone, k_alone)[1], best_key(both, k_both)[1]
+    # before: 4.5 % with the PI against 1.9 % without. Now within 0.75 % of learning alone
+    # (measured 1.9-2.4 % against 1.8-2.0 %: the PI feeds the load cell's noise to the key)
+    assert kb["max_pct"] <= 3.0 and kb["rms_pct"] <= 1.0
+    assert kb["max_pct"] <= ka["max_pct"] + 0.75
 
 
 def test_q_filter_is_zero_phase():
