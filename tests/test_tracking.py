@@ -342,3 +342,119 @@ def test_ctrl_c_during_learning_keeps_what_was_learned(tmp_path, monkeypatch):
     assert records.find(cfg, learn_svc.profiles.load(Path("profiles/forte.yaml")), [])[1] == \
         rep.record_path
     assert any(line.startswith("learning stopped: trial 2") for line in lines)
+
+
+# ---- the learner's pieces: the drive model, its Jacobian, the fit, the solvers, the PI ----
+
+def test_the_learners_drive_model_is_the_simulated_drive():
+    from rig.control import plant
+
+    single, risefall = plant.thesis_models()
+    p, r, u0 = grid("two-peak")
+    for variant, model in (("single", single), ("asymmetric", risefall)):
+        res = offline.play(u0, variant=variant, noise_n=0.0)
+        np.testing.assert_allclose(model.simulate(u0, HZ), res.key_force, atol=1e-9)
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_the_jacobian_matches_finite_differences(which):
+    from rig.control import plant
+
+    model = plant.thesis_models()[which]
+    n = 120
+    d = np.r_[np.linspace(0, 20, 50), np.full(20, 20.0), np.linspace(20, 0, 50)]
+    d[50:70] += np.linspace(0, 1, 20)   # still rising through the "hold"
+    J = model.jacobian(d, HZ)
+    assert np.allclose(np.triu(J), 0.0)  # strictly causal: y_j from d_0 .. d_{j-1}
+    for j in (10, 45, 60, 100):          # inside a rising or falling stretch: modes kept
+        h = 1e-6
+        dp = d.copy()
+        dp[j] += h
+        fd = (model.simulate(dp, HZ) - model.simulate(d, HZ)) / h
+        np.testing.assert_allclose(J[:, j], fd, atol=1e-5)
+    assert J.shape == (n, n)
+
+
+def test_fit_picks_the_model_that_explains_the_trial_and_its_gain():
+    from rig.control import plant
+
+    models = plant.thesis_models()
+    p, r, u0 = grid("forte")
+    res = offline.play(u0, variant="asymmetric", gain=0.9, rng=np.random.default_rng(2))
+    f = plant.fit(models, res.demand, res.measured, HZ)
+    assert f.model is models[1] and f.gain == pytest.approx(0.9, abs=0.005)
+    assert f.rms_residual_n == pytest.approx(NOISE, rel=0.15)   # all but the noise
+    res = offline.play(u0, variant="single", rng=np.random.default_rng(2))
+    assert plant.fit(models, res.demand, res.measured, HZ).model is models[0]
+
+
+def test_noise_aware_step_fits_down_to_the_noise_and_not_below():
+    rng = np.random.default_rng(0)
+    n = 200
+    T = np.tril(rng.standard_normal((n, n)), -1) * 0.1 + np.eye(n, k=-1)
+    e = np.sin(np.arange(n) / 10.0) + 0.2 * rng.standard_normal(n)
+    tau = ilc.discrepancy_tau(n)
+    du, lam = ilc.noise_aware_step(T, e, 0.04, tau)
+    assert np.isfinite(lam) and lam > 0
+    assert np.sum((e - T @ du) ** 2) == pytest.approx(tau * n * 0.04, rel=1e-6)
+    np.testing.assert_allclose(du, np.linalg.solve(T.T @ T + lam * np.eye(n), T.T @ e),
+                               atol=1e-6)
+    noise_only = 0.2 * rng.standard_normal(n)   # an error the noise explains: no update
+    du, lam = ilc.noise_aware_step(T, noise_only, 0.04 * 1.2, tau)
+    assert lam == float("inf") and not du.any()
+
+
+def test_bounded_solve_is_the_bounded_least_squares_solution():
+    from scipy.optimize import lsq_linear
+
+    rng = np.random.default_rng(1)
+    n = 80
+    T = np.tril(rng.standard_normal((n, n))) * 0.2 + np.eye(n)
+    e = 3 * rng.standard_normal(n)
+    lo, hi = -np.abs(rng.standard_normal(n)), np.full(n, 1.5)
+    x = ilc.bounded_solve(T, e, 0.3, lo, hi)
+    ref = lsq_linear(np.vstack([T, np.sqrt(0.3) * np.eye(n)]), np.r_[e, np.zeros(n)],
+                     bounds=(lo, hi), tol=1e-12, lsq_solver="exact").x
+    np.testing.assert_allclose(x, ref, atol=1e-7)
+    assert (x <= lo + 1e-12).any() and (x >= hi - 1e-12).any()   # both bounds active
+
+
+def test_the_closed_loop_jacobian_of_the_pi_matches_finite_differences():
+    from rig.control import plant
+
+    model = plant.thesis_models()[0]
+    p, r, u0 = grid("forte")
+    pi = feedback.LoadCellPI()
+    y0, d0, free = model.simulate_loop(u0, HZ, pi, 1.0, 50.0, r)
+    F, C = pi.lifted(r.size)
+    np.testing.assert_array_equal(F, np.eye(r.size))   # the PI's target is the profile
+    T = plant.closed_loop(model.jacobian(d0, HZ), F, C, free)
+    for j in (30, 60, 120):
+        up = u0.copy()
+        up[j] += 1e-5
+        fd = (model.simulate_loop(up, HZ, pi, 1.0, 50.0, r)[0] - y0) / 1e-5
+        np.testing.assert_allclose(T[:, j], fd, atol=1e-4)
+    pi.target_n = None   # without the profile the PI's target is the delayed feedforward
+    F2, _ = pi.lifted(r.size)
+    assert not np.allclose(F2, np.eye(r.size))
+
+
+def test_load_cell_pi_compares_with_the_profile_when_the_loop_gives_it():
+    ctl = feedback.LoadCellPI()
+    ctl.reset()
+    ctl.target_n = 10.0
+    out = ctl(0.0, 3.0, 10.0)        # on target: the feedforward passes unchanged
+    assert out == pytest.approx(3.0) and ctl.integral == 0.0
+    out = ctl(0.002, 3.0, 8.0)
+    assert out == pytest.approx(3.0 + ctl.kp * 2.0)
+    assert ctl.integrating == [True, True]
+
+
+def test_long_tables_use_the_p_type_update():
+    n = ilc.MAX_MODEL_POINTS + 1
+    r = np.r_[np.linspace(0, 10, n // 2), np.linspace(10, 0, n - n // 2)]
+    lrn = ilc.Learner.start(r, r, ilc.LearningFilter.default(HZ, 0.008), CFG.limits, HZ,
+                            noise_n=NOISE)
+    assert not lrn.model_based
+    lrn.update(0.9 * r)
+    assert "P-type" in lrn.notes[-1] and lrn.u[n // 2] > r[n // 2]

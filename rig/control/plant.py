@@ -61,7 +61,8 @@ class ProcessModel:
         """(A, B) for the state [y, y', y''] and a demand held for dt (zero-order hold)."""
         return _discrete(self, dt)
 
-    def _discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def exact_discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``discrete`` computed (matrix exponential), not cached."""
         a3 = self.Tw * self.Tw * self.Tp3
         a2 = self.Tw * self.Tw + 2 * self.zeta * self.Tw * self.Tp3
         a1 = 2 * self.zeta * self.Tw + self.Tp3
@@ -82,7 +83,7 @@ class ProcessModel:
 
 @functools.lru_cache(maxsize=64)
 def _discrete(model: ProcessModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    A, B = model._discrete(dt)
+    A, B = model.exact_discrete(dt)
     A.setflags(write=False)
     B.setflags(write=False)
     return A, B
