@@ -458,3 +458,34 @@ def test_long_tables_use_the_p_type_update():
     assert not lrn.model_based
     lrn.update(0.9 * r)
     assert "P-type" in lrn.notes[-1] and lrn.u[n // 2] > r[n // 2]
+
+
+def _mismatched(m: float = 0.3):
+    from rig.control import plant
+
+    def bad(p):
+        return plant.ProcessModel(p.K * (1 - m / 3), p.Tw * (1 + m), p.zeta, p.Tp3 * (1 + m))
+    return tuple(plant.DriveModel(d.name + " (mismatched)", bad(d.rise), bad(d.fall))
+                 for d in plant.thesis_models())
+
+
+def test_refine_identifies_the_drives_dynamics_from_one_trial():
+    from rig.control import plant
+
+    p, r, u0 = grid("two-peak")
+    res = offline.play(u0, variant="asymmetric", rng=np.random.default_rng(3))
+    f = plant.fit(_mismatched()[1:], res.demand, res.measured, HZ)
+    assert f.rms_residual_n > 3 * NOISE                # the wrong models miss the trial
+    g = plant.refine(f, res.demand, res.measured, HZ)
+    assert g.model.name.endswith("(identified)")
+    assert g.rms_residual_n < 1.15 * NOISE             # the identified one: only the noise
+    true = plant.thesis_models()[1]
+    assert g.model.fall.Tw == pytest.approx(true.fall.Tw, rel=0.1)
+
+
+def test_a_learner_with_wrong_models_identifies_the_drive_and_learns():
+    # the learner's models 30 % slower and 10 % weaker than the (asymmetric) drive
+    p, lrn, keys, _ = learn("two-peak", "asymmetric", models=_mismatched())
+    best, k = best_key(lrn, keys)
+    assert "(identified)" in lrn.notes[0]
+    assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 1.0

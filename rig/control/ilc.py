@@ -61,8 +61,9 @@ from rig.errors import InputError
 DEFAULT_GAIN_K = 0.9322        # N/N, actuator.process_model_all K of the thesis (Eq. D.1)
 DEFAULT_LEARNING_FACTOR = 1.0  # fraction of the error (divided by K) learned per trial
 DEFAULT_Q_CUTOFF_HZ = 100.0
-MAX_MODEL_POINTS = 3000
-GAUSS_NEWTON_STEPS = 4        # longer tables (> 6 s at 500 Hz) learn with the P-type update
+MAX_MODEL_POINTS = 3000        # longer tables (> 6 s at 500 Hz) learn with the P-type update
+GAUSS_NEWTON_STEPS = 4
+IDENTIFY_ABOVE_NOISE = 1.2     # identify the model's dynamics when its residual > this x noise
 
 
 def discrepancy_tau(n: int) -> float:
@@ -236,6 +237,7 @@ class Learner:
     models: tuple[plant.DriveModel, ...] | None = None
     controller: Any = None
     step: float = 1.0
+    identify: bool = True
     history: list[dict[str, float]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     best_u: np.ndarray | None = None
@@ -245,10 +247,12 @@ class Learner:
     _err_sum: np.ndarray | None = None
     _averaged: int = 0
     _gains: list[tuple[float, float]] = field(default_factory=list)
+    _candidates: list[plant.DriveModel] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.models is None:
             self.models = plant.thesis_models()
+        self._candidates = list(self.models)
         if not 0 < self.step < 10:
             raise InputError(f"learning step: expected 0 to 10, got {self.step}")
 
@@ -330,7 +334,15 @@ class Learner:
         assert self.models
         hz = self.control_hz
         n = e.size
-        f = plant.fit(self.models, d, y, hz)
+        f = plant.fit(self._candidates, d, y, hz)
+        if self.identify and f.rms_residual_n > IDENTIFY_ABOVE_NOISE * self.noise_n:
+            # the models do not explain the trial: identify the best one's dynamics from it,
+            # and keep the identified model as that candidate for the next trials
+            # (each candidate's: the one the wrong parameters fit best need not be the right one)
+            for i, m in enumerate(list(self._candidates)):
+                g = plant.refine(plant.fit([m], d, y, hz), d, y, hz)
+                if g.model is not m and g.rms_residual_n < f.rms_residual_n:
+                    self._candidates[i], f = g.model, g
         lifted = getattr(self.controller, "lifted", None)
         gain = self._predicted_gain(f)
 
