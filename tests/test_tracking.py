@@ -216,6 +216,8 @@ def test_rig_run_learn_saves_a_record_that_a_later_run_uses(tmp_path):
                 "f.h5"], tmp_path)
     assert res.returncode == 0, res.stderr
     assert "trial  max error %  RMS error %" in res.stdout
+    assert "model-based (Newton-type, noise-aware)" in res.stdout   # the update used, and
+    assert "thesis single model" in res.stdout                      # each trial's model
     saved = list((tmp_path / "data" / "learned").glob("forte-*.json"))
     assert len(saved) == 1
     rec = records.read(saved[0])
@@ -489,3 +491,39 @@ def test_a_learner_with_wrong_models_identifies_the_drive_and_learns():
     best, k = best_key(lrn, keys)
     assert "(identified)" in lrn.notes[0]
     assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 1.0
+
+
+class _TargetRecorder:
+    """A controller with ``target_n``: records what rig run's loop gives it."""
+
+    name = "target_recorder"
+
+    def __init__(self) -> None:
+        self.target_n: float | None = None
+        self.seen: list[tuple[float, float | None]] = []
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
+        self.seen.append((t, self.target_n))
+        return feedforward_n
+
+
+@pytest.mark.slow
+def test_rig_runs_loop_gives_a_controller_the_profile_as_target(tmp_path):
+    from rig.services import run as run_svc
+
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"},
+                               "sim": {"realtime": False},
+                               "loop": {"rest_s": 0.05, "settle_s": 0.05},
+                               "data_folder": str(tmp_path)})
+    ctl = _TargetRecorder()
+    rep = run_svc.run(Path("profiles/forte.yaml"), cfg, out=tmp_path / "t.h5", lockstep=True,
+                      controller=ctl)
+    assert rep.complete
+    p = profiles.load("profiles/forte.yaml")
+    inside = [(t, v) for t, v in ctl.seen if 0 <= t <= p.duration]
+    assert len(inside) > 250
+    for t, v in inside:
+        assert v == pytest.approx(p.at(t))
