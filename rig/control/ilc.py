@@ -11,9 +11,11 @@ The update (``Learner``, model-based; issue 18):
   calibration's identified model, the thesis's single model and its rise/fall pair)
   are simulated on the demand played; the one that explains the measured force best,
   its gain re-estimated by least squares, is used (a drive that drifts, or responds
-  differently to rising and falling demands, is followed). A gain that drifted the
-  same way over the last three trials by more than its estimate's noise is
-  extrapolated one trial ahead.
+  differently to rising and falling demands, is followed). When none explains it to
+  within ``IDENTIFY_ABOVE_NOISE`` x the noise, each candidate's time constants are
+  identified from the trial (``plant.refine``) and the best identified model replaces
+  its candidate for the following trials. A gain that drifted the same way over the
+  last three trials by more than its estimate's noise is extrapolated one trial ahead.
 * Newton-type (norm-optimal) ILC: with y_hat(u) the model's force for table u (the
   loop's controller and limiter simulated in it; ``rig.control.feedback.LoadCellPI``
   gives its lifted form, so the closed loop is inverted), the new table minimises
@@ -26,7 +28,9 @@ The update (``Learner``, model-based; issue 18):
   the error only down to what the load cell's noise explains (n sigma^2 times 1 + 2
   standard deviations of its chi-square), so noise is not learned into the table; an
   error already within that is not learned from at all, and the next trials (the same
-  table) are averaged with it (sigma^2 / m) until the error stands out.
+  table) are averaged with it (sigma^2 / m) until the error stands out (with noisy
+  measurements a fixed-gain update keeps learning noise; stochastic ILC averages,
+  e.g. Saab's decreasing learning gains, 2001).
 * Trials longer than ``MAX_MODEL_POINTS`` cycles (the lifted model is dense) use the
   earlier P-type update ``u_{k+1} = Q(u_k + L e_k)``, (L e)_j = gain x e_{j + lead}:
   ``LearningFilter.from_record`` takes K (the record's ``sensitivity``) and the lag
