@@ -119,13 +119,15 @@ def noise_aware_step(T: np.ndarray, e: np.ndarray, noise_var: float,
 
 
 def bounded_solve(T: np.ndarray, e: np.ndarray, lam: float, lower: np.ndarray,
-                  upper: np.ndarray) -> np.ndarray:
-    """argmin ||e - T du||^2 + lam ||du||^2 with lower <= du <= upper (the demand's
-    limits: a drive that cannot pull, max force): a primal active-set method on the
-    normal equations (H = T'T + lam I is positive definite)."""
+                  upper: np.ndarray, mu: float = 0.0,
+                  centre: np.ndarray | None = None) -> np.ndarray:
+    """argmin ||e - T du||^2 + lam ||du||^2 + mu ||du - centre||^2 with lower <= du <=
+    upper (the demand's limits: a drive that cannot pull, max force; mu: a
+    Levenberg-Marquardt damping towards ``centre``): a primal active-set method on the
+    normal equations (H = T'T + (lam + mu) I is positive definite)."""
     n = e.size
-    H = T.T @ T + lam * np.eye(n)
-    g = T.T @ e
+    H = T.T @ T + (lam + mu) * np.eye(n)
+    g = T.T @ e + (mu * centre if centre is not None and mu > 0 else 0.0)
     x = np.clip(np.linalg.solve(H, g), lower, upper)
     at_lo, at_hi = x <= lower, x >= upper
     for _ in range(100):
@@ -393,19 +395,31 @@ class Learner:
 
         u, c_u, T, yh = u0, float(np.sum((z - y0) ** 2)), T0, y0
         lower, upper = -u0, self.limits.max_force_n - u0
+        # Levenberg-Marquardt on the model: a step whose actual decrease of the cost is
+        # under a quarter of what the linearisation predicted (the rise/fall modes changed
+        # under it) is not taken and the next is damped harder (mu); after a good one, less:
+        # steps stay where the model's linearisation holds, whatever lam the noise allows
+        # (without the damping, a nearly noise-free load cell's tiny lam gave steps that
+        # switched the modes every few cycles)
         steps = []
-        for _ in range(GAUSS_NEWTON_STEPS):
-            cand = u0 + bounded_solve(T, z - yh + T @ (u - u0), lam, lower, upper)
-            for alpha in (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125):
-                trial = u + alpha * (cand - u)
-                yt, Tt = model(trial)
-                ct = cost(trial, yt)
-                if ct < c_u:
-                    u, c_u, yh, T = trial, ct, yt, Tt
-                    steps.append(alpha)
+        mu, scale = 0.0, float(np.trace(T0.T @ T0)) / n
+        for _ in range(3 * GAUSS_NEWTON_STEPS):
+            r_lin = z - yh + T @ (u - u0)
+            du = bounded_solve(T, r_lin, lam, lower, upper, mu, u - u0)
+            trial = u0 + du
+            pred = float(np.sum((r_lin - T @ du) ** 2) + lam * np.sum(du ** 2))
+            yt, Tt = model(trial)
+            ct = cost(trial, yt)
+            if c_u - pred <= 1e-12 * max(c_u, 1.0):
+                break       # converged: the linearisation has nothing left to gain
+            if (c_u - ct) >= 0.25 * (c_u - pred):
+                u, c_u, yh, T = trial, ct, yt, Tt
+                steps.append(mu)
+                mu = mu / 10.0 if mu > 1e-6 * scale else 0.0
+                if len(steps) >= GAUSS_NEWTON_STEPS:
                     break
             else:
-                break
+                mu = max(10.0 * mu, 1e-4 * scale)
         err["updated"] = 1.0 if steps else 0.0
         err["lambda"] = lam
         if not steps:
