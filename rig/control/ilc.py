@@ -20,10 +20,10 @@ The update (``Learner``, model-based; issue 18):
   loop's controller and limiter simulated in it; ``rig.control.feedback.LoadCellPI``
   gives its lifted form, so the closed loop is inverted), the new table minimises
   ||z - y_hat(u)||^2 + lam ||u - u_k||^2 with z = y_hat(u_k) + e_k and 0 <= u <= max
-  force, by Gauss-Newton steps with backtracking on the model. The rise/fall modes of
-  the model follow the demand, so a drive that switches models is inverted where it
-  is, not through a linear update (Amann, Owens & Rogers 1996, norm-optimal ILC; the
-  Newton form: Avrachenkov 1998).
+  force, by Levenberg-Marquardt (damped Gauss-Newton) steps on the model. The
+  rise/fall modes of the model follow the demand, so a drive that switches models is
+  inverted where it is, not through a linear update (Amann, Owens & Rogers 1996,
+  norm-optimal ILC; the Newton form: Avrachenkov 1998).
 * Noise-aware: lam by the discrepancy principle (``noise_aware_step``): the update fits
   the error only down to what the load cell's noise explains (n sigma^2 times 1 + 2
   standard deviations of its chi-square), so noise is not learned into the table; an
@@ -332,8 +332,8 @@ class Learner:
         closed loop's Jacobian from the controller's ``lifted``). The target is
         z = y_hat(u_k) + e_k (the model corrected by what it missed; e_k averaged over
         the trials played with u_k). The update minimises ||z - y_hat(u)||^2 +
-        lam ||u - u_k||^2 subject to 0 <= u <= max force, by Gauss-Newton steps with
-        backtracking on the model (its rise/fall modes follow the demand); lam from the
+        lam ||u - u_k||^2 subject to 0 <= u <= max force, by Levenberg-Marquardt steps on
+        the model (its rise/fall modes follow the demand); lam from the
         first, linear, step (``noise_aware_step``: fit no closer than the noise). No
         update while the error is within the noise (the next trial's error is averaged
         in). A drifting gain is extrapolated to the next trial (``_predicted_gain``)."""
