@@ -345,9 +345,9 @@ class Learner:
             # the models do not explain the trial: identify the best one's dynamics from it,
             # and keep the identified model as that candidate for the next trials
             # (each candidate's: the one the wrong parameters fit best need not be the right one)
-            for i, m in enumerate(list(self._candidates)):
-                g = plant.refine(plant.fit([m], d, y, hz), d, y, hz)
-                if g.model is not m and g.rms_residual_n < f.rms_residual_n:
+            for i, cand_model in enumerate(list(self._candidates)):
+                g = plant.refine(plant.fit([cand_model], d, y, hz), d, y, hz)
+                if g.model is not cand_model and g.rms_residual_n < f.rms_residual_n:
                     self._candidates[i], f = g.model, g
         lifted = getattr(self.controller, "lifted", None)
         gain = self._predicted_gain(f)
