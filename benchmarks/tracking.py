@@ -4,13 +4,17 @@ For each drive variant (single, asymmetric, step_size) and profile (forte, piano
 two-peak): the maximum and RMS error (% of the peak) of the load cell's force
 (what the loop sees, with its noise) and of the true key force, for the open-loop
 8 ms advance, the static map + lag compensation (demand = profile(t + 8 ms) / K,
-K = 0.9322 N/N), and each of 5 ILC trials (rig.control.ilc, defaults) started from
-the advance; then the same with the load-cell PI (rig.control.feedback) in the
-loop; then forte/single under twice the noise, 1 ms jitter, a drive gain drifting
-down 10 % from the first trial to the last, and a learning gain 6x too high (must stop).
+K = 0.9322 N/N), and each of 5 ILC trials (rig.control.ilc, defaults: the model-based,
+noise-aware update through the thesis's single and rise/fall models; ``--p-type``: the
+earlier P-type update) started from the advance, with each trial's note (the model
+picked, its gain, whether the table changed); then the same with the load-cell PI
+(rig.control.feedback, comparing with the profile) in the loop and in the learning's
+model; then forte/single under twice the noise, 1 ms jitter, a drive gain drifting
+down 10 % from the first trial to the last, and a learning gain 6x too high (must stop);
+then learners whose models are wrong (time constants x1.3, K x0.9).
 Limits (motor_torque.Limiter) acting on any learned demand are counted.
 
-    python benchmarks/tracking.py [--trials 5] [--seed 1]
+    python benchmarks/tracking.py [--trials 5] [--seed 1] [--p-type]
 """
 
 from __future__ import annotations
@@ -21,21 +25,31 @@ from pathlib import Path
 import numpy as np
 
 from rig import config, profiles
-from rig.control import feedback, ilc, offline
+from rig.control import feedback, ilc, offline, plant
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": "sim"}})
 HZ = 500.0
 NOISE = CFG.sim.load_cell_noise_n
+P_TYPE = False
 
 
 def fmt(m: dict[str, float], k: dict[str, float]) -> str:
     return f"{m['max_pct']:6.2f} {m['rms_pct']:5.2f} | {k['max_pct']:6.2f} {k['rms_pct']:5.2f}"
 
 
+def mismatched(m: float) -> tuple[plant.DriveModel, ...]:
+    """The thesis's models with their time constants x (1 + m) and K x (1 - m / 3): a
+    learner whose models are wrong."""
+    def bad(p: plant.ProcessModel) -> plant.ProcessModel:
+        return plant.ProcessModel(p.K * (1 - m / 3), p.Tw * (1 + m), p.zeta, p.Tp3 * (1 + m))
+    return tuple(plant.DriveModel(d.name + " (mismatched)", bad(d.rise), bad(d.fall))
+                 for d in plant.thesis_models())
+
+
 def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
          noise: float = NOISE, jitter: float = 0.0, drift: float = 0.0,
-         factor: float = ilc.DEFAULT_LEARNING_FACTOR) -> None:
+         factor: float = ilc.DEFAULT_LEARNING_FACTOR, mismatch: float = 0.0) -> None:
     p = profiles.load(ROOT / "profiles" / f"{name}.yaml", force_limit=CFG.limits.max_force_n)
     t = np.arange(int(np.ceil(p.duration * HZ - 1e-9)) + 1) / HZ
     r = np.array([p.at(x) for x in t])
@@ -45,10 +59,13 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
     def play(u: np.ndarray, k: int = 0) -> offline.TrialResult:
         return offline.play(u, variant=variant, noise_n=noise, jitter_s=jitter,
                             gain=1.0 - drift * k / max(trials - 1, 1), rng=rng,
-                            controller=feedback.LoadCellPI() if pi else None)
+                            controller=feedback.LoadCellPI() if pi else None,
+                            reference=r)
 
     label = (f"{name:8s} {variant:10s} {'PI' if pi else '--':2s} noise {noise:.2f} N jitter "
-             f"{jitter * 1e3:.0f} ms drift {drift * 100:.0f} % gain x{factor:g}")
+             f"{jitter * 1e3:.0f} ms drift {drift * 100:.0f} % gain x{factor:g}"
+             + (f" learner's models: time constants x{1 + mismatch:g}, K x{1 - mismatch / 3:g}"
+                if mismatch else ""))
     print(label)
     floor = {"measured max": max(3.0, 300 * NOISE / p.peak),
              "key max": max(2.0, 100 * NOISE / p.peak), "key rms": max(1.0, 50 * NOISE / p.peak)}
@@ -58,16 +75,18 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
         res = play(u)
         errs = ilc.errors(r, res.measured, p.peak), ilc.errors(r, res.key_force, p.peak)
         print(f"  {what:14s} {fmt(*errs)}")
+    models = () if P_TYPE else (mismatched(mismatch) if mismatch else None)
     lrn = ilc.Learner.start(r, adv, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
-                            HZ, noise_n=noise)
+                            HZ, noise_n=noise, models=models, step=factor,
+                            controller=feedback.LoadCellPI() if pi else None)
     limited = 0
     keys = []
     for k in range(trials):
         res = play(lrn.u, k)
         limited += res.limited if not pi else 0
         keys.append(ilc.errors(r, res.key_force, p.peak))
-        m = lrn.update(res.measured)
-        print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}")
+        m = lrn.update(res.measured, res.demand)
+        print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}  {lrn.notes[-1]}")
         if lrn.stopped:
             print(f"  stopped: {lrn.stopped}")
             break
@@ -81,7 +100,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--p-type", action="store_true", help="the earlier P-type update")
     a = ap.parse_args()
+    global P_TYPE
+    P_TYPE = a.p_type
     print("columns: measured force max % RMS % | true key force max % RMS % (of the peak)")
     for variant in ("single", "asymmetric", "step_size"):
         for name in ("forte", "piano", "two-peak"):
@@ -92,6 +114,8 @@ def main() -> None:
     case("forte", "single", a.trials, a.seed, jitter=0.001)
     case("forte", "single", a.trials, a.seed, drift=0.10)
     case("forte", "single", 8, a.seed, factor=6.0)
+    for name, variant in (("forte", "single"), ("forte", "asymmetric"), ("two-peak", "asymmetric")):
+        case(name, variant, a.trials, a.seed, mismatch=0.3)
 
 
 if __name__ == "__main__":

@@ -28,46 +28,90 @@ def grid(name: str) -> tuple[profiles.Profile, np.ndarray, np.ndarray]:
 
 
 def learn(name: str, variant: str, trials: int = 5, factor: float = 1.0, noise: float = NOISE,
-          jitter: float = 0.0, drift: float = 0.0, seed: int = 1):
+          jitter: float = 0.0, drift: float = 0.0, seed: int = 1, pi: bool = False,
+          models=None):
     p, r, u0 = grid(name)
     lrn = ilc.Learner.start(r, u0, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
-                            HZ, noise_n=noise)
+                            HZ, noise_n=noise, step=factor, models=models,
+                            controller=feedback.LoadCellPI() if pi else None)
     rng = np.random.default_rng(seed)
     keys, tables = [], []
     for k in range(trials):
         tables.append(lrn.u.copy())
         res = offline.play(lrn.u, variant=variant, noise_n=noise, jitter_s=jitter,
-                           gain=1.0 - drift * k / max(trials - 1, 1), rng=rng)
-        assert res.limited == 0  # no learned demand is cut by the loop's limiter
+                           gain=1.0 - drift * k / max(trials - 1, 1), rng=rng,
+                           controller=feedback.LoadCellPI() if pi else None, reference=r)
+        if not pi:
+            assert res.limited == 0  # no learned demand is cut by the loop's limiter
         keys.append(ilc.errors(r, res.key_force, p.peak))
-        lrn.update(res.measured)
+        lrn.update(res.measured, res.demand)
         if lrn.stopped:
             break
     return p, lrn, keys, tables
 
 
+def best_key(lrn, keys):
+    _, best = lrn.result()
+    return best, keys[int(best["trial"]) - 1]
+
+
 @pytest.mark.parametrize("name", ["forte", "two-peak"])
 @pytest.mark.parametrize("variant", ["single", "step_size"])
-def test_learns_to_within_3_percent_in_five_trials(variant, name):
+def test_learns_the_key_force_to_within_2_percent_in_five_trials(variant, name):
     p, lrn, keys, _ = learn(name, variant)
-    best_u, best = lrn.result()
-    first = lrn.history[0]
-    assert first["max_pct"] > 6.0  # the open-loop 8 ms advance: the thesis's ~6.5 %
-    assert best["max_pct"] <= 3.0 and best["rms_pct"] <= 1.0
-    k = keys[int(best["trial"]) - 1]
-    assert k["rms_pct"] <= 1.0
-    # the true key force: <= 2 % on two-peak; on forte 1.9-2.2 % depending on the noise's
-    # seed (the sharp corners of the 375 N/s ramps against the 100 Hz Q filter): a known gap
-    assert k["max_pct"] <= (2.0 if name == "two-peak" else 2.5)
+    best, k = best_key(lrn, keys)
+    assert lrn.history[0]["max_pct"] > 6.0  # the open-loop 8 ms advance: the thesis's ~6.5 %
+    # issue 18: the true key force within 2 % (max) and 1 % (RMS) of the peak
+    assert k["max_pct"] <= 2.0 and k["rms_pct"] <= 1.0
+    # the load cell (noise included: 0.22 N is 0.9 % of two-peak's 24 N; its maximum over
+    # 300 cycles alone is ~3 sigma = 2.8 %): within 3 % + 1 sigma and RMS 1.2 %
+    assert best["max_pct"] <= 3.0 + 100 * NOISE / p.peak and best["rms_pct"] <= 1.2
+
+
+@pytest.mark.parametrize("name", ["forte", "two-peak"])
+def test_learns_the_asymmetric_drive_through_its_rise_fall_model(name):
+    # the drive switches between the thesis's rise and fall models with the demand's
+    # direction (issue 18's case a): a linear update did not learn it (forte 32.8 % ->
+    # 15.5 %, two-peak not improved); the Newton-type update through the rise/fall model
+    p, lrn, keys, _ = learn(name, "asymmetric")
+    best, k = best_key(lrn, keys)
+    assert keys[0]["max_pct"] > 12.0
+    assert "rise/fall" in lrn.notes[0]               # the model that explains the trial
+    # issue 18's 2 % key maximum is NOT met reliably: 1.9-2.3 % with the benchmark's noise
+    # sequence, 3.0-4.5 % with this one (the release's end, where the slow fall model and
+    # the demand's floor at 0 meet); RMS 0.5-1.1 %
+    assert k["max_pct"] <= 5.0 and k["rms_pct"] <= 1.2
+    assert best["rms_pct"] <= 1.5
+
+
+def test_the_linear_p_type_update_does_not_learn_the_asymmetric_drive():
+    # what the model-based update is for: the P-type update (models=()) stays far off
+    _, lrn, keys, _ = learn("forte", "asymmetric", models=())
+    assert "P-type" in lrn.notes[0]
+    assert best_key(lrn, keys)[1]["max_pct"] > 10.0
+
+
+@pytest.mark.parametrize("variant", ["single", "asymmetric"])
+def test_piano_learning_does_not_make_the_key_force_worse(variant):
+    # peak 1.2 N, 5x the load cell's noise: the error is mostly noise; the noise-aware update
+    # learns only what stands out of it (averaging trials played with the same table)
+    p, lrn, keys, _ = learn("piano", variant)
+    best, k = best_key(lrn, keys)
+    floor = 100 * NOISE / p.peak                      # 1 x noise = 18.3 % of the peak
+    assert k["max_pct"] <= keys[0]["max_pct"] + 0.1 * floor
+    assert k["rms_pct"] <= keys[0]["rms_pct"] + 0.05 * floor
+    assert k["max_pct"] <= floor and k["rms_pct"] <= 0.5 * floor
+    assert any("within the noise" in n for n in lrn.notes)
 
 
 def test_every_learned_table_is_within_the_limits():
-    _, lrn, _, tables = learn("forte", "single")
-    dt = 1 / HZ
-    for u in tables + [lrn.u]:
-        assert u.min() >= 0 and u.max() <= CFG.limits.max_force_n
-        steps = np.abs(np.diff(np.r_[0.0, u, 0.0]))
-        assert steps.max() <= CFG.limits.max_rate_n_per_s * dt + 1e-9
+    for variant in ("single", "asymmetric"):
+        _, lrn, _, tables = learn("forte", variant)
+        dt = 1 / HZ
+        for u in tables + [lrn.u]:
+            assert u.min() >= 0 and u.max() <= CFG.limits.max_force_n
+            steps = np.abs(np.diff(np.r_[0.0, u, 0.0]))
+            assert steps.max() <= CFG.limits.max_rate_n_per_s * dt + 1e-9
 
 
 def test_limit_table_clips_force_and_rate():
@@ -90,11 +134,32 @@ def test_forte_learning_is_robust(case):
     # twice the noise, 1 ms jitter, the drive's gain drifting down 10 % over the 5 trials:
     # still learns (a later trial is the best) to within twice the nominal criteria
     _, lrn, keys, _ = learn("forte", "single", **case)
-    _, best = lrn.result()
-    assert best["trial"] > 1
+    best, k = best_key(lrn, keys)
+    assert best["trial"] > 1 and lrn.stopped is None
     assert best["max_pct"] <= 6.0 and best["rms_pct"] <= 2.0
-    if "drift" not in case:  # with the drift the key force's max error is 4.3 % (issue 18 gap)
-        assert keys[int(best["trial"]) - 1]["max_pct"] <= 4.0
+    assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 2.0
+
+
+def test_a_drifting_gain_is_re_estimated_and_extrapolated():
+    _, lrn, _, _ = learn("forte", "single", drift=0.10)
+    gains = [h["model_gain"] for h in lrn.history]
+    np.testing.assert_allclose(gains, [1.0, 0.975, 0.95, 0.925, 0.9], atol=0.006)
+    assert lrn.history[-1]["predicted_gain"] == pytest.approx(0.875, abs=0.006)
+    _, steady, _, _ = learn("forte", "single")      # no drift: no extrapolation
+    assert all(h["predicted_gain"] == h["model_gain"] for h in steady.history
+               if "predicted_gain" in h)
+
+
+def test_load_cell_pi_with_learning_is_not_worse_than_learning_alone():
+    # issue 18 case c: the PI compares the load cell with the profile (target_n), and the
+    # update inverts the closed loop (LoadCellPI.lifted)
+    _, alone, k_alone, _ = learn("forte", "single")
+    _, both, k_both, _ = learn("forte", "single", pi=True)
+    ka, kb = best_key(alone, k_alone)[1], best_key(both, k_both)[1]
+    # before: 4.5 % with the PI against 1.9 % without. Now within 0.75 % of learning alone
+    # (measured 1.9-2.4 % against 1.8-2.0 %: the PI feeds the load cell's noise to the key)
+    assert kb["max_pct"] <= 3.0 and kb["rms_pct"] <= 1.0
+    assert kb["max_pct"] <= ka["max_pct"] + 0.75
 
 
 def test_q_filter_is_zero_phase():
@@ -154,6 +219,8 @@ def test_rig_run_learn_saves_a_record_that_a_later_run_uses(tmp_path):
                 "f.h5"], tmp_path)
     assert res.returncode == 0, res.stderr
     assert "trial  max error %  RMS error %" in res.stdout
+    assert "model-based (Newton-type, noise-aware)" in res.stdout   # the update used, and
+    assert "thesis single model" in res.stdout                      # each trial's model
     saved = list((tmp_path / "data" / "learned").glob("forte-*.json"))
     assert len(saved) == 1
     rec = records.read(saved[0])
@@ -280,3 +347,196 @@ def test_ctrl_c_during_learning_keeps_what_was_learned(tmp_path, monkeypatch):
     assert records.find(cfg, learn_svc.profiles.load(Path("profiles/forte.yaml")), [])[1] == \
         rep.record_path
     assert any(line.startswith("learning stopped: trial 2") for line in lines)
+
+
+# ---- the learner's pieces: the drive model, its Jacobian, the fit, the solvers, the PI ----
+
+def test_the_learners_drive_model_is_the_simulated_drive():
+    from rig.control import plant
+
+    single, risefall = plant.thesis_models()
+    p, r, u0 = grid("two-peak")
+    for variant, model in (("single", single), ("asymmetric", risefall)):
+        res = offline.play(u0, variant=variant, noise_n=0.0)
+        np.testing.assert_allclose(model.simulate(u0, HZ), res.key_force, atol=1e-9)
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_the_jacobian_matches_finite_differences(which):
+    from rig.control import plant
+
+    model = plant.thesis_models()[which]
+    n = 120
+    d = np.r_[np.linspace(0, 20, 50), np.full(20, 20.0), np.linspace(20, 0, 50)]
+    d[50:70] += np.linspace(0, 1, 20)   # still rising through the "hold"
+    J = model.jacobian(d, HZ)
+    assert np.allclose(np.triu(J), 0.0)  # strictly causal: y_j from d_0 .. d_{j-1}
+    for j in (10, 45, 60, 100):          # inside a rising or falling stretch: modes kept
+        h = 1e-6
+        dp = d.copy()
+        dp[j] += h
+        fd = (model.simulate(dp, HZ) - model.simulate(d, HZ)) / h
+        np.testing.assert_allclose(J[:, j], fd, atol=1e-5)
+    assert J.shape == (n, n)
+
+
+def test_fit_picks_the_model_that_explains_the_trial_and_its_gain():
+    from rig.control import plant
+
+    models = plant.thesis_models()
+    p, r, u0 = grid("forte")
+    res = offline.play(u0, variant="asymmetric", gain=0.9, rng=np.random.default_rng(2))
+    f = plant.fit(models, res.demand, res.measured, HZ)
+    assert f.model is models[1] and f.gain == pytest.approx(0.9, abs=0.005)
+    assert f.rms_residual_n == pytest.approx(NOISE, rel=0.15)   # all but the noise
+    res = offline.play(u0, variant="single", rng=np.random.default_rng(2))
+    assert plant.fit(models, res.demand, res.measured, HZ).model is models[0]
+
+
+def test_noise_aware_step_fits_down_to_the_noise_and_not_below():
+    rng = np.random.default_rng(0)
+    n = 200
+    T = np.tril(rng.standard_normal((n, n)), -1) * 0.1 + np.eye(n, k=-1)
+    e = np.sin(np.arange(n) / 10.0) + 0.2 * rng.standard_normal(n)
+    tau = ilc.discrepancy_tau(n)
+    du, lam = ilc.noise_aware_step(T, e, 0.04, tau)
+    assert np.isfinite(lam) and lam > 0
+    assert np.sum((e - T @ du) ** 2) == pytest.approx(tau * n * 0.04, rel=1e-6)
+    np.testing.assert_allclose(du, np.linalg.solve(T.T @ T + lam * np.eye(n), T.T @ e),
+                               atol=1e-6)
+    noise_only = 0.2 * rng.standard_normal(n)   # an error the noise explains: no update
+    du, lam = ilc.noise_aware_step(T, noise_only, 0.04 * 1.2, tau)
+    assert lam == float("inf") and not du.any()
+
+
+def test_bounded_solve_is_the_bounded_least_squares_solution():
+    from scipy.optimize import lsq_linear
+
+    rng = np.random.default_rng(1)
+    n = 80
+    T = np.tril(rng.standard_normal((n, n))) * 0.2 + np.eye(n)
+    e = 3 * rng.standard_normal(n)
+    lo, hi = -np.abs(rng.standard_normal(n)), np.full(n, 1.5)
+    x = ilc.bounded_solve(T, e, 0.3, lo, hi)
+    ref = lsq_linear(np.vstack([T, np.sqrt(0.3) * np.eye(n)]), np.r_[e, np.zeros(n)],
+                     bounds=(lo, hi), tol=1e-12, lsq_solver="exact").x
+    np.testing.assert_allclose(x, ref, atol=1e-7)
+    assert (x <= lo + 1e-12).any() and (x >= hi - 1e-12).any()   # both bounds active
+
+
+def test_the_closed_loop_jacobian_of_the_pi_matches_finite_differences():
+    from rig.control import plant
+
+    model = plant.thesis_models()[0]
+    p, r, u0 = grid("forte")
+    pi = feedback.LoadCellPI()
+    y0, d0, free = model.simulate_loop(u0, HZ, pi, 1.0, 50.0, r)
+    F, C = pi.lifted(r.size)
+    np.testing.assert_array_equal(F, np.eye(r.size))   # the PI's target is the profile
+    T = plant.closed_loop(model.jacobian(d0, HZ), F, C, free)
+    for j in (30, 60, 120):
+        up = u0.copy()
+        up[j] += 1e-5
+        fd = (model.simulate_loop(up, HZ, pi, 1.0, 50.0, r)[0] - y0) / 1e-5
+        np.testing.assert_allclose(T[:, j], fd, atol=1e-4)
+    pi.target_n = None   # without the profile the PI's target is the delayed feedforward
+    F2, _ = pi.lifted(r.size)
+    assert not np.allclose(F2, np.eye(r.size))
+
+
+def test_load_cell_pi_compares_with_the_profile_when_the_loop_gives_it():
+    ctl = feedback.LoadCellPI()
+    ctl.reset()
+    ctl.target_n = 10.0
+    out = ctl(0.0, 3.0, 10.0)        # on target: the feedforward passes unchanged
+    assert out == pytest.approx(3.0) and ctl.integral == 0.0
+    out = ctl(0.002, 3.0, 8.0)
+    assert out == pytest.approx(3.0 + ctl.kp * 2.0)
+    assert ctl.integrating == [True, True]
+
+
+def test_long_tables_use_the_p_type_update():
+    n = ilc.MAX_MODEL_POINTS + 1
+    r = np.r_[np.linspace(0, 10, n // 2), np.linspace(10, 0, n - n // 2)]
+    lrn = ilc.Learner.start(r, r, ilc.LearningFilter.default(HZ, 0.008), CFG.limits, HZ,
+                            noise_n=NOISE)
+    assert not lrn.model_based
+    lrn.update(0.9 * r)
+    assert "P-type" in lrn.notes[-1] and lrn.u[n // 2] > r[n // 2]
+
+
+def _mismatched(m: float = 0.3):
+    from rig.control import plant
+
+    def bad(p):
+        return plant.ProcessModel(p.K * (1 - m / 3), p.Tw * (1 + m), p.zeta, p.Tp3 * (1 + m))
+    return tuple(plant.DriveModel(d.name + " (mismatched)", bad(d.rise), bad(d.fall))
+                 for d in plant.thesis_models())
+
+
+def test_refine_identifies_the_drives_dynamics_from_one_trial():
+    from rig.control import plant
+
+    p, r, u0 = grid("two-peak")
+    res = offline.play(u0, variant="asymmetric", rng=np.random.default_rng(3))
+    f = plant.fit(_mismatched()[1:], res.demand, res.measured, HZ)
+    assert f.rms_residual_n > 3 * NOISE                # the wrong models miss the trial
+    g = plant.refine(f, res.demand, res.measured, HZ)
+    assert g.model.name.endswith("(identified)")
+    assert g.rms_residual_n < 1.15 * NOISE             # the identified one: only the noise
+    true = plant.thesis_models()[1]
+    assert g.model.fall.Tw == pytest.approx(true.fall.Tw, rel=0.1)
+
+
+def test_a_learner_with_wrong_models_identifies_the_drive_and_learns():
+    # the learner's models 30 % slower and 10 % weaker than the (asymmetric) drive
+    p, lrn, keys, _ = learn("two-peak", "asymmetric", models=_mismatched())
+    best, k = best_key(lrn, keys)
+    assert "(identified)" in lrn.notes[0]
+    assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 1.0
+
+
+class _TargetRecorder:
+    """A controller with ``target_n``: records what rig run's loop gives it."""
+
+    name = "target_recorder"
+
+    def __init__(self) -> None:
+        self.target_n: float | None = None
+        self.seen: list[tuple[float, float | None]] = []
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
+        self.seen.append((t, self.target_n))
+        return feedforward_n
+
+
+@pytest.mark.slow
+def test_rig_runs_loop_gives_a_controller_the_profile_as_target(tmp_path):
+    from rig.services import run as run_svc
+
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"},
+                               "sim": {"realtime": False},
+                               "loop": {"rest_s": 0.05, "settle_s": 0.05},
+                               "data_folder": str(tmp_path)})
+    ctl = _TargetRecorder()
+    rep = run_svc.run(Path("profiles/forte.yaml"), cfg, out=tmp_path / "t.h5", lockstep=True,
+                      controller=ctl)
+    assert rep.complete
+    p = profiles.load("profiles/forte.yaml")
+    inside = [(t, v) for t, v in ctl.seen if 0 <= t <= p.duration]
+    assert len(inside) > 250
+    for t, v in inside:
+        assert v == pytest.approx(p.at(t))
+
+
+def test_a_nearly_noise_free_load_cell_does_not_make_the_rise_fall_inversion_chatter():
+    # with almost no noise the discrepancy principle allows an almost exact inverse; the
+    # Levenberg-Marquardt damping keeps each step where the rise/fall modes it assumed
+    # hold (without it: 29-35 % after 5 trials, the demand changing direction ~190 times)
+    _, lrn, keys, _ = learn("forte", "asymmetric", noise=0.005)
+    assert lrn.stopped is None
+    assert best_key(lrn, keys)[1]["max_pct"] <= 5.0
+    assert np.sum(np.diff(np.sign(np.diff(lrn.u))) != 0) < 120   # ~190 without the damping

@@ -1,13 +1,16 @@
 """Load-cell feedback in the 500 Hz loop: a PI controller on the force error.
 
 Switched on in the rig config: ``loop.controller: rig.control.feedback:LoadCellPI``
-(the loop's Controller hook, rig.services.run). Each cycle
+(the loop's Controller hook, rig.controller). Each cycle
 
     demand = feedforward + Kp e + I,   I += Ki e dt,   e = feedforward_target - measured
 
-where the target is the profile at the cycle's time (the loop passes the advanced
-feedforward; the PI compares the load cell with the feedforward delayed by the
-drive's lag, ``lead`` cycles, so the open-loop lag compensation is not fought).
+where the target is the profile at the cycle's time: the loop sets ``target_n`` each
+cycle (without it, the feedforward delayed by the drive's lag, ``lead`` cycles, which
+for the advanced profile is the same). With a learned feedforward the PI so compares
+the load cell with the profile, not with the learned table (which differs from the
+profile by design): the PI then only corrects what the table did not learn, and the
+learning (rig.control.ilc) inverts the closed loop (``lifted``).
 
 Design from the identified drive model (Eq. D.1, thesis single model, K = 0.9322
 N/N, ~8 ms lag incl. the load cell's filter): the loop's dead time is the lag plus
@@ -22,6 +25,8 @@ to +-``integral_limit_n``; the loop's motor_torque.Limiter still applies after i
 from __future__ import annotations
 
 from collections import deque
+
+import numpy as np
 
 from rig.control.ilc import DEFAULT_GAIN_K
 from rig.errors import InputError
@@ -45,19 +50,38 @@ class LoadCellPI:
         self.lead = lead
         self.max_force_n = max_force_n
         self.integral_limit_n = integral_limit_n
+        self.target_n: float | None = None   # the profile now, set by the loop each cycle
         self.reset()
 
     def reset(self) -> None:
         self.integral = 0.0
+        self.integrating: list[bool] = []   # per cycle since reset: did the integral move?
         self._ff: deque[float] = deque([0.0] * (self.lead + 1), maxlen=self.lead + 1)
 
     def __call__(self, t: float, feedforward_n: float, measured_n: float) -> float:
         self._ff.append(feedforward_n)
-        target = self._ff[0]   # the feedforward `lead` cycles ago: what the force should be now
+        # the profile now (the loop sets target_n), else the feedforward `lead` cycles ago
+        target = self.target_n if self.target_n is not None else self._ff[0]
         e = target - measured_n
         out = feedforward_n + self.kp * e + self.integral
         inside = 0.0 <= out <= self.max_force_n
+        moved = False
         if inside or (out > self.max_force_n and e < 0) or (out < 0 and e > 0):
-            self.integral = min(self.integral_limit_n, max(-self.integral_limit_n,
-                                                           self.integral + self.ki * e * self.dt))
+            raw = self.integral + self.ki * e * self.dt
+            self.integral = min(self.integral_limit_n, max(-self.integral_limit_n, raw))
+            moved = self.integral == raw
+        self.integrating.append(moved)
         return out
+
+    def lifted(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The PI over a trial of n cycles as d = F u - C y + (terms without u or y):
+        C = Kp I + Ki dt (strictly lower ones, the columns of the cycles the anti-windup
+        held the integral in the last trial played or simulated zeroed); F = I with the
+        profile as target, else I + C S (S the lead-cycle delay of the feedforward).
+        What the learning update needs to invert the closed loop (rig.control.plant)."""
+        mask = (np.asarray(self.integrating[:n], float) if len(self.integrating) >= n
+                else np.ones(n))   # the cycles whose error the integral took in (anti-windup)
+        C = self.kp * np.eye(n) + self.ki * self.dt * np.tril(np.ones((n, n)), -1) * mask
+        if self.target_n is not None:
+            return np.eye(n), C
+        return np.eye(n) + C @ np.eye(n, k=-self.lead), C

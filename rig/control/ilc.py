@@ -2,34 +2,49 @@
 
 One trial's feedforward is a table ``u`` (N) on the loop's 500 Hz trial-time grid
 (``t_j = j / control_hz`` from the profile's start). After a trial with measured
-load-cell force ``y`` the error ``e = r - y`` (r: the profile on the same grid) updates it:
+load-cell force ``y`` (and the demand ``d`` the loop wrote) the error ``e = r - y``
+(r: the profile on the same grid) updates it.
 
-    u_{k+1} = Q( u_k + L e_k ),   (L e)_j = gain * e_{j + lead}
+The update (``Learner``, model-based; issue 18):
 
-* L, the learning filter: a gain and a time advance of ``lead`` cycles. The drive
-  (Eq. D.1, thesis Appendix D) lags the demand by ~8 ms and has a static gain K
-  (0.93 N/N); the error a demand change makes shows up ``lead`` cycles later, so
-  the update looks that far ahead, and gain = ``learning_factor / K``.
+* The model: ``rig.control.plant``. Each trial, the candidate drive models (the motor
+  calibration's identified model, the thesis's single model and its rise/fall pair)
+  are simulated on the demand played; the one that explains the measured force best,
+  its gain re-estimated by least squares, is used (a drive that drifts, or responds
+  differently to rising and falling demands, is followed). When none explains it to
+  within ``IDENTIFY_ABOVE_NOISE`` x the noise, each candidate's time constants are
+  identified from the trial (``plant.refine``) and the best identified model replaces
+  its candidate for the following trials. A gain that drifted the same way over the
+  last three trials by more than its estimate's noise is extrapolated one trial ahead.
+* Newton-type (norm-optimal) ILC: with y_hat(u) the model's force for table u (the
+  loop's controller and limiter simulated in it; ``rig.control.feedback.LoadCellPI``
+  gives its lifted form, so the closed loop is inverted), the new table minimises
+  ||z - y_hat(u)||^2 + lam ||u - u_k||^2 with z = y_hat(u_k) + e_k and 0 <= u <= max
+  force, by Levenberg-Marquardt (damped Gauss-Newton) steps on the model. The
+  rise/fall modes of the model follow the demand, so a drive that switches models is
+  inverted where it is, not through a linear update (Amann, Owens & Rogers 1996,
+  norm-optimal ILC; the Newton form: Avrachenkov 1998).
+* Noise-aware: lam by the discrepancy principle (``noise_aware_step``): the update fits
+  the error only down to what the load cell's noise explains (n sigma^2 times 1 + 2
+  standard deviations of its chi-square), so noise is not learned into the table; an
+  error already within that is not learned from at all, and the next trials (the same
+  table) are averaged with it (sigma^2 / m) until the error stands out (with noisy
+  measurements a fixed-gain update keeps learning noise; stochastic ILC averages,
+  e.g. Saab's decreasing learning gains, 2001).
+* Trials longer than ``MAX_MODEL_POINTS`` cycles (the lifted model is dense) use the
+  earlier P-type update ``u_{k+1} = Q(u_k + L e_k)``, (L e)_j = gain x e_{j + lead}:
   ``LearningFilter.from_record`` takes K (the record's ``sensitivity``) and the lag
-  (``lag_s``) from the motor calibration record (`rig calibrate motor`); without
-  one, ``LearningFilter.default`` uses the thesis's single model's K (0.9322 N/N)
-  and ``loop.advance_s`` (8 ms), with learning_factor 1.0.
-* Q, the robustness filter: a zero-phase (forward-backward) 2nd-order Butterworth
-  low-pass at ``q_cutoff_hz`` (default 100 Hz), applied to the whole table after each
-  update; it stops the learning from chasing load-cell noise and the drive's
-  un-modelled high-frequency behaviour (the learning converges where |Q(1 - L G)| < 1).
+  (``lag_s``) from the motor calibration record, ``LearningFilter.default`` the thesis's
+  K (0.9322 N/N) and ``loop.advance_s``; Q a zero-phase 2nd-order Butterworth low-pass
+  at ``q_cutoff_hz`` (100 Hz); the k-th update's gain x max(1 / k, 0.5).
 * The limits: every learned table is clipped to [0, limits.max_force_n] and its
   change per cycle to ``limits.max_rate_n_per_s * dt`` (``limit_table``), so no
   learned demand asks for what ``motor_torque.Limiter`` would have to cut.
-* Divergence: ``Learner.update`` keeps the best trial (lowest RMS error) and stops
+* Divergence: ``Learner.update`` keeps the best trial (lowest RMS error; a later one
+  within the noise of it replaces it, ``_as_good_as_best``) and stops
   (``Learner.stopped``) when a trial's RMS error exceeds the best's by ``grow_factor``
-  (default 1.5), or when two trials are worse than the best: their RMS error
-  beyond the load cell's noise (sqrt(rms^2 - noise_n^2)) exceeds the best's by
-  10 % + 0.1 noise_n (a noise-level difference is not divergence).
-* The gain of the k-th update is gain x max(1 / k, min_gain_fraction = 0.5): the
-  first update takes the full gain, later ones half, so the load cell's noise
-  learned into the table does not build up at the full gain while a drifting
-  drive is still followed.
+  (default 1.5), or when two trials are worse than the best by more than the noise
+  explains (``_worse_than_best``).
 
 SI units throughout: forces N, times s.
 """
@@ -40,14 +55,101 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.optimize import lsq_linear
 from scipy.signal import butter, filtfilt
 
 from rig.config import Limits
+from rig.control import plant
 from rig.errors import InputError
 
 DEFAULT_GAIN_K = 0.9322        # N/N, actuator.process_model_all K of the thesis (Eq. D.1)
 DEFAULT_LEARNING_FACTOR = 1.0  # fraction of the error (divided by K) learned per trial
 DEFAULT_Q_CUTOFF_HZ = 100.0
+MAX_MODEL_POINTS = 3000        # longer tables (> 6 s at 500 Hz) learn with the P-type update
+GAUSS_NEWTON_STEPS = 4
+IDENTIFY_ABOVE_NOISE = 1.2     # identify the model's dynamics when its residual > this x noise
+
+
+def discrepancy_tau(n: int) -> float:
+    """The noise's share of ||e||^2 / (n sigma^2) that is not yet evidence of an error: 1
+    plus two standard deviations of a chi-square with n degrees of freedom over n."""
+    return 1.0 + 2.0 * float(np.sqrt(2.0 / max(n, 1)))
+
+
+
+
+
+def noise_aware_step(T: np.ndarray, e: np.ndarray, noise_var: float,
+                     tau: float) -> tuple[np.ndarray, float]:
+    """The smallest update that explains the error down to its noise (Morozov's
+    discrepancy principle on norm-optimal ILC).
+
+    Minimises ||e - T du||^2 + lam ||du||^2, lam chosen so the residual ||e - T du||^2
+    is tau n noise_var: the error the update leaves is what the noise explains, no
+    less (the rest would be noise learned into the table). An error already within
+    tau n noise_var gives du = 0 and lam = inf.
+    """
+    e = np.asarray(e, float)
+    n = e.size
+    target = tau * n * max(noise_var, 1e-6)
+    if float(e @ e) <= target:
+        return np.zeros(n), float("inf")
+    s2, V = np.linalg.eigh(T.T @ T)   # T'T = V diag(s2) V' (robust where an SVD may fail)
+    s2 = np.maximum(s2, 0.0)
+    gamma = V.T @ (T.T @ e)
+    ee = float(e @ e)
+
+    def resid(lam: float) -> float:   # ||e - T du(lam)||^2, du(lam) = (T'T + lam)^-1 T'e
+        w = 1.0 / (s2 + lam)
+        return ee - float(np.sum((2.0 * w - s2 * w * w) * gamma ** 2))
+
+    top = float(s2.max())
+    lo, hi = np.log(top * 1e-12 + 1e-300), np.log(top * 1e6 + 1e-300)
+    if resid(np.exp(lo)) >= target:   # even the least-regularised fit is within the noise
+        lam = float(np.exp(lo))
+    else:
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if resid(np.exp(mid)) > target:
+                hi = mid
+            else:
+                lo = mid
+        lam = float(np.exp(0.5 * (lo + hi)))
+    return V @ (gamma / (s2 + lam)), lam
+
+
+def bounded_solve(T: np.ndarray, e: np.ndarray, lam: float, lower: np.ndarray,
+                  upper: np.ndarray, mu: float = 0.0,
+                  centre: np.ndarray | None = None) -> np.ndarray:
+    """argmin ||e - T du||^2 + lam ||du||^2 + mu ||du - centre||^2 with lower <= du <=
+    upper (the demand's limits: a drive that cannot pull, max force; mu: a
+    Levenberg-Marquardt damping towards ``centre``): a primal active-set method on the
+    normal equations (H = T'T + (lam + mu) I is positive definite)."""
+    n = e.size
+    H = T.T @ T + (lam + mu) * np.eye(n)
+    g = T.T @ e + (mu * centre if centre is not None and mu > 0 else 0.0)
+    x = np.clip(np.linalg.solve(H, g), lower, upper)
+    at_lo, at_hi = x <= lower, x >= upper
+    for _ in range(100):
+        free = ~(at_lo | at_hi)
+        x = np.where(at_lo, lower, np.where(at_hi, upper, 0.0))
+        if free.any():
+            rhs = g[free] - H[np.ix_(free, ~free)] @ x[~free]
+            x[free] = np.linalg.solve(H[np.ix_(free, free)], rhs)
+        lo_new, hi_new = free & (x < lower), free & (x > upper)
+        if lo_new.any() or hi_new.any():   # clip the violators and solve again
+            at_lo |= lo_new
+            at_hi |= hi_new
+            continue
+        grad = H @ x - g                    # release bounds the gradient pulls away from
+        rel = (at_lo & (grad < -1e-12)) | (at_hi & (grad > 1e-12))
+        if not rel.any():
+            return x
+        at_lo &= ~rel
+        at_hi &= ~rel
+    res = lsq_linear(np.vstack([T, np.sqrt(lam) * np.eye(n)]), np.r_[e, np.zeros(n)],
+                     bounds=(lower, upper), method="trf", lsq_solver="exact", tol=1e-8)
+    return np.asarray(res.x)
 
 
 @dataclass(frozen=True)
@@ -121,7 +223,14 @@ def errors(reference: np.ndarray, measured: np.ndarray, peak: float) -> dict[str
 
 @dataclass
 class Learner:
-    """The learning across trials on a fixed grid; ``u`` is the next trial's table."""
+    """The learning across trials on a fixed grid; ``u`` is the next trial's table.
+
+    ``models``: the candidate drive models of the model-based update (None: the thesis's
+    single and rise/fall models; an empty tuple: the P-type update ``filt``);
+    ``controller``: the loop's controller, if it has ``lifted(n)`` (its linear map,
+    F and C with d = F u - C y), the update inverts the closed loop; ``step``: the
+    fraction of the model-based update taken.
+    """
 
     reference: np.ndarray
     u: np.ndarray
@@ -131,11 +240,27 @@ class Learner:
     grow_factor: float = 1.5
     noise_n: float = 0.0
     min_gain_fraction: float = 0.5
+    models: tuple[plant.DriveModel, ...] | None = None
+    controller: Any = None
+    step: float = 1.0
+    identify: bool = True
     history: list[dict[str, float]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     best_u: np.ndarray | None = None
     best: dict[str, float] | None = None
     stopped: str | None = None
     _worse: int = 0
+    _err_sum: np.ndarray | None = None
+    _averaged: int = 0
+    _gains: list[tuple[float, float]] = field(default_factory=list)
+    _candidates: list[plant.DriveModel] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.models is None:
+            self.models = plant.thesis_models()
+        self._candidates = list(self.models)
+        if not 0 < self.step < 10:
+            raise InputError(f"learning step: expected 0 to 10, got {self.step}")
 
     @classmethod
     def start(cls, reference: np.ndarray, initial: np.ndarray, filt: LearningFilter,
@@ -151,8 +276,17 @@ class Learner:
     def peak(self) -> float:
         return float(self.reference.max())
 
-    def update(self, measured: np.ndarray) -> dict[str, float]:
-        """Learn from the trial just played with ``self.u``; its errors (with ``trial``)."""
+    @property
+    def model_based(self) -> bool:
+        return bool(self.models) and self.reference.size <= MAX_MODEL_POINTS
+
+    def update(self, measured: np.ndarray, demand: np.ndarray | None = None
+               ) -> dict[str, float]:
+        """Learn from the trial just played with ``self.u``; its errors (with ``trial``).
+
+        ``demand``: what the loop wrote at each cycle (the table, unless a controller
+        or the limiter changed it); the model-based update linearises the drive there.
+        """
         y = np.asarray(measured, float)
         if y.shape != self.reference.shape:
             raise InputError(f"measured force: expected {self.reference.shape[0]} points, got "
@@ -160,12 +294,10 @@ class Learner:
         err = errors(self.reference, y, self.peak)
         err["trial"] = float(len(self.history) + 1)
         self.history.append(err)
-        if self.best is None or err["rms_n"] < self.best["rms_n"]:
+        if self.best is None or self._as_good_as_best(err["rms_n"]):
             self.best, self.best_u, self._worse = err, self.u.copy(), 0
         else:
-            # a trial worse than the best by more than the noise can explain
-            if self._above_noise(err["rms_n"]) > 1.1 * self._above_noise(self.best["rms_n"]) \
-                    + 0.1 * self.noise_n:
+            if self._worse_than_best(err["rms_n"]):
                 self._worse += 1
             if err["rms_n"] > self.grow_factor * self.best["rms_n"] or self._worse >= 2:
                 self.stopped = (f"the error grew (trial {int(err['trial'])}: RMS "
@@ -174,19 +306,162 @@ class Learner:
                                 f"{int(self.best['trial'])}")
                 assert self.best_u is not None
                 self.u = self.best_u.copy()
+                self._err_sum, self._averaged = None, 0
+                self.notes.append("stopped")
                 return err
         e = self.reference - y
+        if self.model_based:
+            d = self.u if demand is None else np.asarray(demand, float)
+            self._model_update(e, y, d, err)
+            return err
         m = self.filt.lead
         # full gain first, then at least min_gain_fraction of it: less noise learned in
         gain = self.filt.gain * max(1.0 / len(self.history), self.min_gain_fraction)
         shifted = np.r_[e[m:], np.full(m, e[-1])] if m else e
         new = q_filter(self.u + gain * shifted, self.filt.q_cutoff_hz, self.control_hz)
         self.u = limit_table(new, self.limits, 1.0 / self.control_hz)
+        self.notes.append(f"P-type update, gain {gain:.3f} N/N, lead {m} cycles")
         return err
 
-    def _above_noise(self, rms_n: float) -> float:
-        """The RMS error the load cell's noise does not explain (N)."""
-        return float(np.sqrt(max(rms_n ** 2 - self.noise_n ** 2, 0.0)))
+    def _model_update(self, e: np.ndarray, y: np.ndarray, d: np.ndarray,
+                      err: dict[str, float]) -> None:
+        """Newton-type, noise-aware: the table whose model output moves by the measured error.
+
+        The candidate drive model that best explains the trial (its gain re-estimated,
+        ``plant.fit``) predicts y_hat(u), with the loop's controller and limiter in it (the
+        closed loop's Jacobian from the controller's ``lifted``). The target is
+        z = y_hat(u_k) + e_k (the model corrected by what it missed; e_k averaged over
+        the trials played with u_k). The update minimises ||z - y_hat(u)||^2 +
+        lam ||u - u_k||^2 subject to 0 <= u <= max force, by Levenberg-Marquardt steps on
+        the model (its rise/fall modes follow the demand); lam from the
+        first, linear, step (``noise_aware_step``: fit no closer than the noise). No
+        update while the error is within the noise (the next trial's error is averaged
+        in). A drifting gain is extrapolated to the next trial (``_predicted_gain``)."""
+        assert self.models
+        hz = self.control_hz
+        n = e.size
+        f = plant.fit(self._candidates, d, y, hz)
+        if self.identify and f.rms_residual_n > IDENTIFY_ABOVE_NOISE * self.noise_n:
+            # the models do not explain the trial: identify the best one's dynamics from it,
+            # and keep the identified model as that candidate for the next trials
+            # (each candidate's: the one the wrong parameters fit best need not be the right one)
+            for i, cand_model in enumerate(list(self._candidates)):
+                g = plant.refine(plant.fit([cand_model], d, y, hz), d, y, hz)
+                if g.model is not cand_model and g.rms_residual_n < f.rms_residual_n:
+                    self._candidates[i], f = g.model, g
+        lifted = getattr(self.controller, "lifted", None)
+        gain = self._predicted_gain(f)
+
+        def model(u: np.ndarray, g: float = gain) -> tuple[np.ndarray, np.ndarray]:
+            yh, dh, free = f.model.simulate_loop(u, hz, self.controller, g,
+                                                 self.limits.max_force_n, self.reference)
+            T = g * f.model.jacobian(dh, hz)
+            if callable(lifted):   # the controller's linear map along this simulation
+                F, C = lifted(n)
+                T = plant.closed_loop(T, F, C, free)
+            else:
+                T = T * free[None, :]
+            return yh, T
+
+        # trials played with the same table measure the same error: average them
+        self._err_sum = e if self._err_sum is None else self._err_sum + e
+        self._averaged += 1
+        m = self._averaged
+        e_avg = self._err_sum / m
+        u0 = self.u
+        nv = self.noise_n ** 2 / m
+        tau = discrepancy_tau(n)
+        err["model_gain"] = f.gain
+        err["predicted_gain"] = gain
+        err["model_rms_residual_n"] = f.rms_residual_n
+        what = (f"{f.model.name} x {f.gain:.3f}"
+                + (f", next trial x {gain:.3f} (drift)" if gain != f.gain else "")
+                + f" (residual {f.rms_residual_n:.3f} N)")
+        lam = float("inf")
+        if float(e_avg @ e_avg) > tau * n * max(nv, 1e-6):
+            # the target: the model's output (at this trial's gain) moved by the error the
+            # trial(s) measured; the update's model is at the next trial's gain (drift)
+            y0, T0 = model(u0)
+            z = (y0 if gain == f.gain else model(u0, f.gain)[0]) + e_avg
+            _, lam = noise_aware_step(T0, z - y0, nv, tau)
+        if not np.isfinite(lam):
+            err["updated"] = 0.0
+            self.notes.append(f"{what}; error within the noise (over {m} trial"
+                              f"{'s' if m > 1 else ''}): table kept")
+            return
+
+        def cost(u: np.ndarray, yh: np.ndarray) -> float:
+            return float(np.sum((z - yh) ** 2) + lam * np.sum((u - u0) ** 2))
+
+        u, c_u, T, yh = u0, float(np.sum((z - y0) ** 2)), T0, y0
+        lower, upper = -u0, self.limits.max_force_n - u0
+        # Levenberg-Marquardt on the model: a step whose actual decrease of the cost is
+        # under a quarter of what the linearisation predicted (the rise/fall modes changed
+        # under it) is not taken and the next is damped harder (mu); after a good one, less:
+        # steps stay where the model's linearisation holds, whatever lam the noise allows
+        # (without the damping, a nearly noise-free load cell's tiny lam gave steps that
+        # switched the modes every few cycles)
+        steps = []
+        mu, scale = 0.0, float(np.trace(T0.T @ T0)) / n
+        for _ in range(3 * GAUSS_NEWTON_STEPS):
+            r_lin = z - yh + T @ (u - u0)
+            du = bounded_solve(T, r_lin, lam, lower, upper, mu, u - u0)
+            trial = u0 + du
+            pred = float(np.sum((r_lin - T @ du) ** 2) + lam * np.sum(du ** 2))
+            yt, Tt = model(trial)
+            ct = cost(trial, yt)
+            if c_u - pred <= 1e-12 * max(c_u, 1.0):
+                break       # converged: the linearisation has nothing left to gain
+            if (c_u - ct) >= 0.25 * (c_u - pred):
+                u, c_u, yh, T = trial, ct, yt, Tt
+                steps.append(mu)
+                mu = mu / 10.0 if mu > 1e-6 * scale else 0.0
+                if len(steps) >= GAUSS_NEWTON_STEPS:
+                    break
+            else:
+                mu = max(10.0 * mu, 1e-4 * scale)
+        err["updated"] = 1.0 if steps else 0.0
+        err["lambda"] = lam
+        if not steps:
+            self.notes.append(f"{what}; no step improves the model's fit: table kept")
+            return
+        self.u = limit_table(u0 + self.step * (u - u0), self.limits, 1.0 / hz)
+        self._err_sum, self._averaged = None, 0
+        self.notes.append(f"{what}; Newton step over {m} trial{'s' if m > 1 else ''} "
+                          f"({len(steps)} Gauss-Newton step{'s' if len(steps) > 1 else ''}, "
+                          f"model RMS {np.sqrt(c_u / n):.3f} N)")
+
+    def _predicted_gain(self, f: plant.Fit) -> float:
+        """The drive's gain expected in the next trial: this trial's estimate, plus the
+        trend of the last three estimates when they drift the same way by more than the
+        estimate's own noise (3 sigma of a difference; sigma = noise / ||model output||)."""
+        self._gains.append((f.gain, f.gain_sigma(self.noise_n)))
+        if len(self._gains) < 3:
+            return f.gain
+        (g1, _), (g2, _), (g3, s3) = self._gains[-3:]
+        d1, d2 = g2 - g1, g3 - g2
+        thr = 3.0 * np.sqrt(2.0) * s3
+        if d1 * d2 > 0 and abs(d1) > thr and abs(d2) > thr:
+            return float(g3 + 0.5 * (d1 + d2))
+        return f.gain
+
+    def _as_good_as_best(self, rms_n: float) -> bool:
+        """Better than the best trial, or as good within two standard deviations of the
+        difference of two noise mean squares (2 x 2 sigma^2 / sqrt(n)): the load cell cannot
+        tell them apart, and the later table, learned from more trials, is kept."""
+        assert self.best is not None
+        margin = 4.0 * self.noise_n ** 2 / np.sqrt(self.reference.size)
+        return rms_n < self.best["rms_n"] or rms_n ** 2 <= self.best["rms_n"] ** 2 + margin
+
+    def _worse_than_best(self, rms_n: float) -> bool:
+        """Worse than the best trial by more than the noise explains: the mean square error
+        beyond the noise's (rms^2 - noise^2) exceeds the best's by 21 % (10 % in RMS) plus
+        two standard deviations of the difference of two noise mean squares over n
+        cycles (2 x 2 noise^2 / sqrt(n))."""
+        assert self.best is not None
+        nv = self.noise_n ** 2
+        margin = 4.0 * nv / np.sqrt(self.reference.size)
+        return rms_n ** 2 - nv > 1.21 * (self.best["rms_n"] ** 2 - nv) + margin
 
     def result(self) -> tuple[np.ndarray, dict[str, float]]:
         """The best table played and its errors."""

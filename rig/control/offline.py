@@ -62,9 +62,9 @@ def play(u: np.ndarray, *, variant: str = "single", control_hz: float = 500.0,
         measured[j] = force[s] + noise_n * rng.standard_normal()
         ff = float(u[j])
         if controller is not None:
-            ref = float(reference[j]) if reference is not None else ff
+            if reference is not None and hasattr(controller, "target_n"):
+                controller.target_n = float(reference[j])   # as rig run's loop does
             ff = controller(j / control_hz, ff, measured[j])  # type: ignore[operator]
-            del ref
         last, hit = lim(float(ff))
         limited += int(hit)
         demand[j] = last

@@ -5,15 +5,19 @@
 Each learning trial is one `rig run` (rig.services.run.run, one run file per trial,
 ``<out stem>-learnK.h5``) playing the current table through the loop's
 ``learned`` hook; after it, the load cell's force at each loop cycle (the run file's
-``commands/measured_force``) updates the table (rig.control.ilc.Learner). The
+``commands/measured_force``) and the demand written (``commands/demand``) update the
+table (rig.control.ilc.Learner: a Newton-type update through the identified drive
+model, with the loop's controller in it, no finer than the load cell's noise). The
 first table is what `rig run` would have played: the newest learned record for
 this profile if there is one (learning goes on from it), else the motor
 calibration's compensation or the 8 ms advance. The learning gain and lead come
 from the motor calibration record when one is in use, else the documented
-defaults (rig.control.ilc). Learning stops early (keeping the best trial) when the
-error grows; Ctrl-C, or a trial that ends aborted, stops it too and keeps what was
-learned so far. The best table is written as a learned-feedforward record
-(rig.control.records) that later `rig run PROFILE` uses.
+defaults (rig.control.ilc); the update's candidate models are the motor
+calibration's dynamic model and the thesis's single and rise/fall models. Learning
+stops early (keeping the best trial) when the error grows; Ctrl-C, or a trial that
+ends aborted, stops it too and keeps what was learned so far. The best table is
+written as a learned-feedforward record (rig.control.records) that later
+`rig run PROFILE` uses.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from rig import profiles, runfile
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
-from rig.control import ilc
+from rig.control import ilc, plant
 from rig.control import records as learned_records
 from rig.errors import InputError
 from rig.services import run as run_svc
@@ -51,13 +55,14 @@ def grid(profile: profiles.Profile, control_hz: float) -> np.ndarray:
     return np.arange(n) / control_hz
 
 
-def measured_force(path: Path, n: int) -> np.ndarray:
-    """The load cell at the first ``n`` loop cycles from the profile's start (N)."""
+def measured_force(path: Path, n: int, column: str = "measured_force") -> np.ndarray:
+    """The load cell (or another ``commands`` column, e.g. the ``demand`` written) at the
+    first ``n`` loop cycles from the profile's start (N)."""
     tr = runfile.read(path).trials[0]
     t = tr.commands["time"]
-    y = tr.commands["measured_force"][t >= -1e-9]
+    y = tr.commands[column][t >= -1e-9]
     if y.size < n:
-        raise InputError(f"{path}: commands/measured_force: {y.size} cycles, expected {n}")
+        raise InputError(f"{path}: commands/{column}: {y.size} cycles, expected {n}")
     return np.asarray(y[:n], float)
 
 
@@ -90,11 +95,27 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     # the load cell's noise (1 sigma, N): the simulated one, else the data sheet's 0.67 N
     # error bound taken as 3 sigma
     noise = cfg.sim.load_cell_noise_n if cfg.backend == "sim" else 0.67 / 3
-    learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise)
-    filt_meta = {"gain_n_per_n": filt.gain, "lead_cycles": filt.lead,
+    # the drive models the update inverts: the motor calibration's, the thesis's single and
+    # rise/fall models; each trial picks the one that explains it best, gain re-estimated
+    models = tuple(m for m in [plant.from_motor_record(motor) if motor else None,
+                               *plant.thesis_models()] if m is not None)
+    controller = run_svc.load_controller(cfg.loop.controller)   # the learner's own copy
+    learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise,
+                                models=models, controller=controller, step=factor)
+    method = ("model-based (Newton-type, noise-aware)" if learner.model_based
+              else f"P-type (more than {ilc.MAX_MODEL_POINTS} cycles)")
+    filt_meta = {"method": method, "models": [m.name for m in models],
+                 "controller": cfg.loop.controller, "step": factor,
+                 "noise_n": noise, "gain_n_per_n": filt.gain, "lead_cycles": filt.lead,
                  "q_cutoff_hz": filt.q_cutoff_hz, "source": filt.source}
-    say(f"learning {profile.name} over up to {n} trials; learning filter: gain "
-        f"{filt.gain:.3f} N/N, lead {filt.lead} cycles, Q {filt.q_cutoff_hz:g} Hz, {filt.source}")
+    if learner.model_based:
+        say(f"learning {profile.name} over up to {n} trials; {method} update through "
+            f"{', '.join(m.name for m in models)}; load-cell noise {noise:.3f} N; "
+            f"controller {cfg.loop.controller}")
+    else:
+        say(f"learning {profile.name} over up to {n} trials; P-type learning filter: gain "
+            f"{filt.gain:.3f} N/N, lead {filt.lead} cycles, Q {filt.q_cutoff_hz:g} Hz, "
+            f"{filt.source}")
     out = Path(out) if out is not None else run_svc.default_path(cfg, profile)
     runs: list[Path] = []
     stopped: str | None = None
@@ -112,9 +133,11 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
             if not rep.complete:
                 stopped = f"trial {k + 1} {rep.status}; kept what was learned before it"
                 break
-            err = learner.update(measured_force(rep.path, t.size))
+            err = learner.update(measured_force(rep.path, t.size),
+                                 measured_force(rep.path, t.size, "demand"))
             say(table([f"{k + 1:5d}", f"{err['max_pct']:11.2f}", f"{err['rms_pct']:11.2f}",
                        str(rep.path)]))
+            say(f"       {learner.notes[-1]}")
             if learner.stopped:
                 stopped = learner.stopped
                 break

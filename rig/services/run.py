@@ -410,6 +410,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             measured = float(loadcell.to_newtons(ratio, lc.sensitivity, lc.offset))
             target = float(profile.at(t)) if t >= 0 else 0.0
             ff = feedforward(profile, t)
+            if hasattr(ctl, "target_n"):   # a controller that compares with the profile
+                ctl.target_n = target
             demand, limited = limiter(float(ctl(t, ff, measured)))
             volts = scaling.volts(demand)
             daq.write_volts(volts)

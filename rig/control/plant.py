@@ -1,0 +1,274 @@
+"""The learner's model of the drive chain, lifted to the loop's trial grid (issue 18).
+
+A trial is N loop cycles; at cycle j the loop reads the load cell (y_j), then writes the
+demand d_j, held until the next cycle. The drive (thesis Appendix D, Eq. D.1, the
+100 Hz load-cell filter inside it)
+
+    G(s) = K / ((1 + 2 zeta Tw s + (Tw s)^2)(1 + Tp3 s))
+
+discretised exactly for the 2 ms hold gives x_{j+1} = A x_j + B d_j, y_j = x_j[0]: y is
+strictly causal in d (y_j depends on d_0 .. d_{j-1}). A ``DriveModel`` has one such
+model for rising and one for falling demands (the thesis's increasing- and
+decreasing-demand models, Figs. D.11-D.16; the state, force and its derivatives,
+carries over at a switch); for ``single`` the two are the same. Its mode at cycle j
+follows the demand: rising after d_j > d_{j-1}, falling after d_j < d_{j-1}, else as
+before. With the modes of a given demand fixed, the model is linear time-varying and
+``jacobian(d)`` is its exact N x N (strictly lower-triangular) lifted matrix: the
+local linearisation the learning update inverts (Newton-type ILC).
+
+``fit(models, d, y)`` picks, per trial, the candidate that best explains what the
+load cell measured for the demand played, with its gain re-estimated by least squares
+(y ~ c model(d)): a drive that drifts or differs from the calibration is followed from
+trial to trial.
+
+``closed_loop(G, F, C, free)``: with a linear controller in the loop, d = F u - C y (u
+the feedforward table), the map u -> y is (I + G C)^-1 G F (the process sensitivity;
+G's columns zeroed where the limiter clipped the demand);
+``rig.control.feedback.LoadCellPI.lifted`` gives its F and C.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.linalg import expm
+
+from rig.errors import InputError
+from rig.params import Parameters
+
+# the thesis's time unit of Tw and Tp3 (2 ms loop periods; rig.sim_backend.drive_model)
+THESIS_TIME_UNIT_S = 0.002
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """Eq. D.1: K (N/N), Tw (s), zeta, Tp3 (s)."""
+
+    K: float
+    Tw: float
+    zeta: float
+    Tp3: float
+
+    def __post_init__(self) -> None:
+        if not (self.K > 0 and self.Tw > 0 and self.zeta > 0 and self.Tp3 > 0):
+            raise InputError(f"process model: expected K, Tw, zeta, Tp3 > 0, got {self}")
+
+    def discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) for the state [y, y', y''] and a demand held for dt (zero-order hold)."""
+        return _discrete(self, dt)
+
+    def exact_discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``discrete`` computed (matrix exponential), not cached."""
+        a3 = self.Tw * self.Tw * self.Tp3
+        a2 = self.Tw * self.Tw + 2 * self.zeta * self.Tw * self.Tp3
+        a1 = 2 * self.zeta * self.Tw + self.Tp3
+        A = np.array([[0, 1, 0], [0, 0, 1], [-1 / a3, -a1 / a3, -a2 / a3]])
+        B = np.array([0, 0, self.K / a3])
+        M = np.zeros((4, 4))
+        M[:3, :3] = A * dt
+        M[:3, 3] = B * dt
+        E = expm(M)
+        return E[:3, :3], E[:3, 3]
+
+    @classmethod
+    def from_thesis(cls, m: Mapping[str, float], time_unit_s: float = THESIS_TIME_UNIT_S
+                    ) -> ProcessModel:
+        return cls(float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
+                   float(m["Tp3"]) * time_unit_s)
+
+
+@functools.lru_cache(maxsize=64)
+def _discrete(model: ProcessModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    A, B = model.exact_discrete(dt)
+    A.setflags(write=False)
+    B.setflags(write=False)
+    return A, B
+
+
+@dataclass(frozen=True)
+class DriveModel:
+    """A rising- and a falling-demand process model (the same one for a linear drive)."""
+
+    name: str
+    rise: ProcessModel
+    fall: ProcessModel
+
+    def _modes(self, d: np.ndarray) -> np.ndarray:
+        """True where cycle j's demand is played with the rising model."""
+        rising = np.empty(d.size, bool)
+        state, last = True, 0.0
+        for j, x in enumerate(d):
+            if x > last:
+                state = True
+            elif x < last:
+                state = False
+            rising[j], last = state, float(x)
+        return rising
+
+    def _matrices(self, d: np.ndarray, dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        ar, br = self.rise.discrete(dt)
+        if self.fall == self.rise:
+            return [ar] * d.size, [br] * d.size
+        af, bf = self.fall.discrete(dt)
+        modes = self._modes(d)
+        return ([ar if m else af for m in modes], [br if m else bf for m in modes])
+
+    def simulate(self, d: np.ndarray, control_hz: float) -> np.ndarray:
+        """y_j: the force read at cycle j, before demand d_j is written (N); the drive
+        pushes only (y >= 0; its state goes on below zero, as the simulated drive's)."""
+        return self.simulate_loop(np.asarray(d, float), control_hz)[0]
+
+    def simulate_loop(self, u: np.ndarray, control_hz: float, controller: Any = None,
+                      gain: float = 1.0, max_demand: float = np.inf,
+                      reference: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(y, d, free): the force read at each cycle, the demand written (the controller's
+        output, if any, ``controller(t, u_j, y_j)`` as in the loop, clipped to
+        0..max_demand as the loop's limiter does) and where that clip did not act;
+        ``gain`` scales the drive's K; ``reference``: the profile, given to the controller
+        as ``target_n`` each cycle as the loop does."""
+        u = np.asarray(u, float)
+        dt = 1.0 / control_hz
+        ar, br = self.rise.discrete(dt)
+        af, bf = (ar, br) if self.fall == self.rise else self.fall.discrete(dt)
+        if controller is not None:
+            controller.reset()
+        x = np.zeros(3)
+        y = np.empty(u.size)
+        d = np.empty(u.size)
+        free = np.ones(u.size, bool)
+        rising, last = True, 0.0
+        for j in range(u.size):
+            y[j] = max(x[0], 0.0)
+            if reference is not None and hasattr(controller, "target_n"):
+                controller.target_n = float(reference[j])
+            pre = float(u[j]) if controller is None else float(controller(j * dt, u[j], y[j]))
+            d[j] = min(max(pre, 0.0), max_demand)
+            free[j] = d[j] == pre
+            if d[j] > last:
+                rising = True
+            elif d[j] < last:
+                rising = False
+            last = float(d[j])
+            x = (ar @ x + br * (gain * d[j])) if rising else (af @ x + bf * (gain * d[j]))
+        return y, d, free
+
+    def jacobian(self, d: np.ndarray, control_hz: float) -> np.ndarray:
+        """dy/dd at demand d (N x N, strictly lower triangular), its modes held fixed; zero
+        rows where the force is clipped at 0."""
+        d = np.asarray(d, float)
+        n = d.size
+        A, B = self._matrices(d, 1.0 / control_hz)
+        J = np.zeros((n, n))
+        X = np.zeros((3, n))   # column i: d x_j / d d_i
+        x = np.zeros(3)
+        for j in range(n - 1):
+            x = A[j] @ x + B[j] * d[j]
+            X[:, :j] = A[j] @ X[:, :j]
+            X[:, j] = B[j]
+            if x[0] > 0:
+                J[j + 1, : j + 1] = X[0, : j + 1]
+        return J
+
+def thesis_models(params: Parameters | None = None) -> tuple[DriveModel, DriveModel]:
+    """The thesis's single model and its rising/falling pair (Appendix D)."""
+    p = params or Parameters.default()
+    single = ProcessModel.from_thesis(p.get("actuator.process_model_all"))
+    return (DriveModel("thesis single model", single, single),
+            DriveModel("thesis rise/fall models",
+                       ProcessModel.from_thesis(p.get("actuator.process_model_increasing")),
+                       ProcessModel.from_thesis(p.get("actuator.process_model_decreasing"))))
+
+
+def from_motor_record(rec: Mapping[str, object]) -> DriveModel | None:
+    """The dynamic model a motor calibration record identified (rig calibrate motor)."""
+    fit = rec.get("fit")
+    dyn = fit.get("dynamic_model") if isinstance(fit, Mapping) else None
+    if not isinstance(dyn, Mapping):
+        return None
+    try:
+        m = ProcessModel(float(dyn["K"]), float(dyn["Tw_s"]), float(dyn["zeta"]),
+                         float(dyn["Tp3_s"]))
+    except (KeyError, TypeError, ValueError, InputError):
+        return None
+    return DriveModel(f"motor calibration {rec.get('content_hash', '?')}", m, m)
+
+
+@dataclass(frozen=True)
+class Fit:
+    model: DriveModel
+    gain: float          # the measured force / the model's, least squares
+    rms_residual_n: float
+    output_norm: float = 1.0   # ||model output|| (N): the gain's uncertainty scale
+
+    def gain_sigma(self, noise_n: float) -> float:
+        """The gain estimate's standard deviation under white load-cell noise."""
+        return noise_n / max(self.output_norm, 1e-9)
+
+
+def fit(models: Sequence[DriveModel], demand: np.ndarray, measured: np.ndarray,
+        control_hz: float) -> Fit:
+    """The candidate (gain re-estimated) that best explains the measured force."""
+    if not models:
+        raise InputError("fit: expected at least one drive model")
+    y = np.asarray(measured, float)
+    best: Fit | None = None
+    for m in models:
+        yh = m.simulate(demand, control_hz)
+        den = float(yh @ yh)
+        c = float(yh @ y) / den if den > 0 else 1.0
+        c = min(max(c, 0.2), 5.0)   # a gain outside 0.2..5 is not the drive: keep it bounded
+        rms = float(np.sqrt(np.mean((y - c * yh) ** 2)))
+        if best is None or rms < best.rms_residual_n:
+            best = Fit(m, c, rms, float(np.sqrt(den)))
+    assert best is not None
+    return best
+
+
+def refine(f: Fit, demand: np.ndarray, measured: np.ndarray, control_hz: float) -> Fit:
+    """The fitted model's dynamics (Tw, zeta, Tp3 of each mode) identified from this trial
+    (least squares on their logarithms, within x0.5..x2 of the candidate's, the gain by
+    least squares inside), when that explains the trial better: a learner whose models
+    are off (a drive slower or faster than the thesis's) still inverts the drive it has."""
+    from scipy.optimize import least_squares
+
+    y = np.asarray(measured, float)
+    d = np.asarray(demand, float)
+    same = f.model.fall == f.model.rise
+    base = [f.model.rise] if same else [f.model.rise, f.model.fall]
+
+    def build(z: np.ndarray) -> DriveModel:
+        ms = [ProcessModel(b.K, b.Tw * float(np.exp(z[3 * i])),
+                           b.zeta * float(np.exp(z[3 * i + 1])),
+                           b.Tp3 * float(np.exp(z[3 * i + 2]))) for i, b in enumerate(base)]
+        name = f.model.name.removesuffix(" (identified)") + " (identified)"
+        return DriveModel(name, ms[0], ms[0] if same else ms[1])
+
+    def resid(z: np.ndarray) -> np.ndarray:
+        yh = build(z).simulate(d, control_hz)
+        den = float(yh @ yh)
+        c = float(yh @ y) / den if den > 0 else 1.0
+        return np.asarray(y - c * yh)
+
+    z0 = np.zeros(3 * len(base))
+    try:
+        sol = least_squares(resid, z0, bounds=(np.full(z0.size, -np.log(2.0)),
+                                               np.full(z0.size, np.log(2.0))),
+                            diff_step=1e-3, max_nfev=40 * z0.size)
+    except (ValueError, InputError):
+        return f
+    cand = fit([build(sol.x)], d, y, control_hz)
+    return cand if cand.rms_residual_n < f.rms_residual_n else f
+
+
+def closed_loop(G: np.ndarray, F: np.ndarray, C: np.ndarray,
+                free: np.ndarray | None = None) -> np.ndarray:
+    """u -> y with the controller d = M (F u - C y) around plant y = G d:
+    (I + G M C)^-1 G M F, M = diag(free) (0 where the limiter clipped the demand)."""
+    n = G.shape[0]
+    GM = G if free is None else G * np.asarray(free, float)[None, :]
+    return np.asarray(np.linalg.solve(np.eye(n) + GM @ C, GM @ F))
