@@ -3,7 +3,9 @@
 ``loop.controller`` names it: ``open_loop`` (the thesis's control: the feedforward is the
 demand) or ``module:Class`` of the user's own (rig.control.feedback is one); rig.services.run
 calls it once per cycle, after ``reset()`` at each trial's start, and limits its demand with
-``rig.motor_torque.Limiter``.
+``rig.motor_torque.Limiter``. A controller with a ``target_n`` attribute is told the
+profile's force now (N, not advanced) before each call (rig.control.feedback.LoadCellPI
+compares the load cell with it).
 """
 
 from __future__ import annotations
