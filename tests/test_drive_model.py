@@ -17,7 +17,7 @@ from scipy import signal
 from rig import config, profiles
 from rig.params import Parameters
 from rig.sim_backend.drive_model import VARIANTS, DriveModel, ramp_lag_s
-from rig.sim_backend.rig import SimRig
+from rig.sim_backend.simrig import SimRig
 
 DT = 0.0005           # the acquisition step (2 kHz)
 SPC = 4               # samples per 2 ms control period

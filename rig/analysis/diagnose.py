@@ -168,7 +168,7 @@ def rank(candidates: list[Candidate], implies: Mapping[str, Sequence[str]],
 @dataclass
 class Diagnosis:
     comparison: cp.Comparison
-    signatures: list[sg.Signature]
+    signatures: list[sg.ResidualSignature]
     base_error: dict[str, float]        # held-out mean square / range^2 per channel
     candidates: list[Candidate]         # first round: each candidate alone, ranked
     split: str

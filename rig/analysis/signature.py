@@ -30,7 +30,7 @@ OSC_MIN_HZ = 40.0
 
 
 @dataclass
-class Signature:
+class ResidualSignature:
     """The residual of one channel in one phase."""
 
     channel: str
@@ -124,7 +124,8 @@ def common_shift(comp: Comparison, mc: ModelComparison, align_s: float) -> float
     return best_tau
 
 
-def signatures(comp: Comparison, mc: ModelComparison, align_s: float = 0.0) -> list[Signature]:
+def signatures(comp: Comparison, mc: ModelComparison,
+               align_s: float = 0.0) -> list[ResidualSignature]:
     """Every (channel, phase) residual's signature, largest normalized residual first.
 
     With ``align_s`` the residual is taken after the model's best common time shift within
@@ -162,7 +163,7 @@ def signatures(comp: Comparison, mc: ModelComparison, align_s: float = 0.0) -> l
             kind = max(shares, key=lambda k: shares[k])
             if shares[kind] < MIN_SHARE:
                 kind = "timing" if events else "shape"
-            out.append(Signature(c, p, rms / comp.ranges[c],
+            out.append(ResidualSignature(c, p, rms / comp.ranges[c],
                                  rms / sig if sig and sig > 0 else math.inf, kind, bias,
                                  lag_share, lag, osc, f0 if osc >= 0.1 else math.nan, events))
     out.sort(key=lambda s: -s.nrms)

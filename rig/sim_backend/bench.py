@@ -86,7 +86,7 @@ class SimBench(Bench):
                        bridge_range(cfg, "load_cell"))
 
     def key_travel(self, force_n: np.ndarray) -> dict[str, np.ndarray]:
-        from rig.sim_backend.rig import SimRig
+        from rig.sim_backend.simrig import SimRig
 
         if self._rig is None:
             self._rig = SimRig(self.cfg)

@@ -34,7 +34,7 @@ from rig.model.action import ActionModel
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
 from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
-from rig.sim_backend.rig import SimRig
+from rig.sim_backend.simrig import SimRig
 
 CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
 BUILD_NOTICE_S = 3.0  # s: a plant still building its model after this is reported (on_line)

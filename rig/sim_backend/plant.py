@@ -181,7 +181,7 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
     """Entry point of the plant process: simulate each control period once its demand is in."""
     from rig.config import from_mapping
     from rig.sim_backend.fifo import SharedFifo
-    from rig.sim_backend.rig import SimRig
+    from rig.sim_backend.simrig import SimRig
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run's process decides on Ctrl-C
     signal.signal(signal.SIGHUP, signal.SIG_IGN)  # ... and on a closed terminal
