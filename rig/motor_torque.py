@@ -1,4 +1,5 @@
-"""Force demand -> drive volts: scaling, safety limits, the lag-compensating advance.
+"""Force demand -> drive volts: scaling, safety limits, the lag-compensating advance;
+the drive's process model (thesis Eq. D.1) discretised for a held demand.
 
 The motor presses the key top through a 0.1 m arm, so force and torque are
 interchangeable (thesis Section 2.8): torque = force * arm; the drive turns
@@ -80,3 +81,30 @@ def check_profile(profile: Profile, limits: Limits, advance_s: float = 0.0) -> N
 def feedforward(profile: Profile, t: float, advance_s: float) -> float:
     """The open-loop demand at trial time t: the profile advance_s ahead (0 before the start)."""
     return float(profile.at(t + advance_s)) if t + advance_s >= 0 else 0.0
+
+
+def process_coefficients(Tw: float, zeta: float, Tp3: float) -> tuple[float, float, float]:
+    """a3, a2, a1 of Eq. D.1, a3 y''' + a2 y'' + a1 y' + y = K u (Tw, Tp3 in s)."""
+    return (Tw * Tw * Tp3, Tw * Tw + 2 * zeta * Tw * Tp3, 2 * zeta * Tw + Tp3)
+
+
+def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation of x' = A x + B u for u held over dt (matrix exponential)."""
+    from scipy.linalg import expm
+
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = A * dt
+    M[:n, n] = B * dt
+    E = expm(M)
+    return E[:n, :n], E[:n, n]
+
+
+def process_discrete(K: float, Tw: float, zeta: float, Tp3: float,
+                     dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of Eq. D.1 K / ((1 + 2 zeta Tw s + (Tw s)^2)(1 + Tp3 s)) for a demand held
+    over dt; state [y, y', y''] (continuous across a switch between models), output y."""
+    a3, a2, a1 = process_coefficients(Tw, zeta, Tp3)
+    A = np.array([[0, 1, 0], [0, 0, 1], [-1 / a3, -a1 / a3, -a2 / a3]])
+    B = np.array([0, 0, K / a3])
+    return zoh(A, B, dt)

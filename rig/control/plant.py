@@ -35,9 +35,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from rig.errors import InputError
+from rig.motor_torque import process_discrete
 from rig.params import Parameters
 
 # the thesis's time unit of Tw and Tp3 (2 ms loop periods; rig.sim_backend.drive_model)
@@ -63,16 +63,7 @@ class ProcessModel:
 
     def exact_discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """``discrete`` computed (matrix exponential), not cached."""
-        a3 = self.Tw * self.Tw * self.Tp3
-        a2 = self.Tw * self.Tw + 2 * self.zeta * self.Tw * self.Tp3
-        a1 = 2 * self.zeta * self.Tw + self.Tp3
-        A = np.array([[0, 1, 0], [0, 0, 1], [-1 / a3, -a1 / a3, -a2 / a3]])
-        B = np.array([0, 0, self.K / a3])
-        M = np.zeros((4, 4))
-        M[:3, :3] = A * dt
-        M[:3, 3] = B * dt
-        E = expm(M)
-        return E[:3, :3], E[:3, 3]
+        return process_discrete(self.K, self.Tw, self.zeta, self.Tp3, dt)
 
     @classmethod
     def from_thesis(cls, m: Mapping[str, float], time_unit_s: float = THESIS_TIME_UNIT_S

@@ -20,9 +20,10 @@ qdot (10)].
 
 The bristle deflection z_b follows a first-order law, dz/dt = r(slip, z) (LuGre,
 normalised by the normal force, see ``bristle_rate``). It is carried as a coordinate
-whose rate relaxes to r within ``sp[S_ZTAU]``: zdd = (r - zd) / tau. That keeps the
-state second-order, which the Rosenbrock integrator's Jacobian structure
-[[0, I], [JA, JB]] needs, at a lag of tau (20 us by default) behind the law.
+whose rate relaxes to r: zdd = (r - zd) / tau, tau = ``sp[S_ZTAU]`` (20 us) while its
+contact carries load, ``sp[S_ZOPEN]`` (1 ms) while it is open. That keeps the state
+second-order, which the Rosenbrock integrator's Jacobian structure [[0, I], [JA, JB]]
+needs, at a lag of tau behind the law.
 Each body is a frame with origin org, angle phi and their Jacobians; forces
 enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T, and velocity-product
 terms through each frame's bias acceleration. Everything

@@ -57,9 +57,9 @@ import math
 from collections.abc import Mapping
 
 import numpy as np
-from scipy.linalg import expm
 
 from rig.errors import InputError
+from rig.motor_torque import process_coefficients, process_discrete, zoh
 from rig.params import Parameters
 
 VARIANTS = ("single", "asymmetric", "step_size")
@@ -67,33 +67,10 @@ STEP_SIZE_REFERENCE_N = 10.0   # the step size of Fig. D.1 that Eq. D.1 was iden
 _SUBSTEPS = 20                 # sub-steps per sample for the slew-limited variant
 
 
-def _coefficients(Tw: float, zeta: float, Tp3: float) -> tuple[float, float, float]:
-    """a3, a2, a1 of a3 y''' + a2 y'' + a1 y' + y = K u."""
-    return (Tw * Tw * Tp3, Tw * Tw + 2 * zeta * Tw * Tp3, 2 * zeta * Tw + Tp3)
-
-
-def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A * dt
-    M[:n, n] = B * dt
-    E = expm(M)
-    return E[:n, :n], E[:n, n]
-
-
-def _discrete(K: float, Tw: float, zeta: float, Tp3: float, dt: float) -> tuple[np.ndarray,
-                                                                                 np.ndarray]:
-    # state [y, y', y''] (continuous across variant switches), output y
-    a3, a2, a1 = _coefficients(Tw, zeta, Tp3)
-    A = np.array([[0, 1, 0], [0, 0, 1], [-1 / a3, -a1 / a3, -a2 / a3]])
-    B = np.array([0, 0, K / a3])
-    return _zoh(A, B, dt)
-
-
 def ramp_lag_s(K: float, Tw: float, zeta: float, Tp3: float) -> float:
     """Steady lag (s) of the continuous model behind a ramp, its output divided by K:
     a1 = 2 zeta Tw + Tp3 (Tw, Tp3 in s). The exact answer the tests check against."""
-    return _coefficients(Tw, zeta, Tp3)[2]
+    return process_coefficients(Tw, zeta, Tp3)[2]
 
 
 class DriveModel:
@@ -119,10 +96,10 @@ class DriveModel:
         single = coeffs("process_model_all")
         self.gain = single[0]
         if variant == "asymmetric":
-            self._rise = _discrete(*coeffs("process_model_increasing"), dt)
-            self._fall = _discrete(*coeffs("process_model_decreasing"), dt)
+            self._rise = process_discrete(*coeffs("process_model_increasing"), dt)
+            self._fall = process_discrete(*coeffs("process_model_decreasing"), dt)
         else:
-            self._rise = self._fall = _discrete(*single, dt)
+            self._rise = self._fall = process_discrete(*single, dt)
         if variant == "step_size":
             K, Tw, zeta, Tp3 = single
             self._tp3 = Tp3
@@ -131,7 +108,7 @@ class DriveModel:
             # second-order stage Tw^2 y'' + 2 zeta Tw y' + y = c, driven by the current stage c
             A2 = np.array([[0.0, 1.0], [-1 / (Tw * Tw), -2 * zeta / Tw]])
             B2 = np.array([0.0, 1 / (Tw * Tw)])
-            self._A2, self._B2 = _zoh(A2, B2, h)
+            self._A2, self._B2 = zoh(A2, B2, h)
             self._decay = math.exp(-h / Tp3)
             self._h = h
         self.x = np.zeros(3)
