@@ -789,7 +789,7 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     correlation need not show it (measured: |r| 0.1-0.8 between two such minima); the
     curvature uncertainty at one minimum is then not the uncertainty. So, given the minima
     ``_restarts`` found (the set's own first), the final set is (1) scored along the line
-    its data pin down least (``_Line``; for one parameter, its own axis), doubling out from
+    its data pin down least (``_Line``), doubling out from
     two standard deviations each way and bisecting ``VALLEY_BISECTIONS`` times; (2) for
     each pair correlated by ``VALLEY_CORR`` or more, scored along its curved valley the
     same way, moving one and refitting the other. A minimum or value whose held-out
@@ -798,7 +798,7 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     uncertainty widens to span every plausible minimum's 95 % interval and every plausible
     value. Says what it found in one line."""
     labels = list(final.values)
-    if not labels or not minima:
+    if len(labels) < 2 or not minima:
         return []
     instances = _set_effects(final, by_name)
     rate = test.measurements[0].rate
@@ -882,14 +882,11 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     if not spans:
         return [f"valley of {what}: refitted from {len(VALLEY_STARTS)} other starts along "
                 f"it, and no value along it beyond the stated uncertainty is as good on the "
-                f"held-out data"] if len(labels) > 1 else []
+                f"held-out data"]
     shown = "; ".join(f"{k} {lo:.3g} to {hi:.3g}{(' ' + _unit(final.units.get(k, ''))).rstrip()}"
                       for k, (lo, hi) in spans.items())
     minima_text = "a least-squares minimum" if len(kept) == 1 else \
         f"{len(kept)} least-squares minima"
-    if len(labels) == 1:
-        return [f"{what}: {minima_text}, and values around it, the held-out data cannot "
-                f"tell from the best; the uncertainty widens to span them ({shown})"]
     return [f"valley of {what}: {minima_text}, and values along it, the "
             f"held-out data cannot tell from the best; the uncertainties widen to span them "
             f"({shown}; the data fix a combination, not each)"]
