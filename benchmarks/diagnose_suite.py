@@ -144,7 +144,7 @@ def varied(case: str, seed: int, hidden: list[str]) -> dict:
     for n in hidden:
         values[n] = {}
         for p in BUILTIN[n].parameters:
-            if not p.fitted:
+            if not p.fitted or n in SENSOR_SIDE:  # hidden in the sensor chain: filter_hz
                 continue
             lo, hi = p.bounds
             v = p.default * away() if p.default > 0 else hi * rng.uniform(0.05, 0.15)
