@@ -78,8 +78,10 @@ def test_learns_the_asymmetric_drive_through_its_rise_fall_model(name):
     assert keys[0]["max_pct"] > 12.0
     assert "rise/fall" in lrn.notes[0]               # the model that explains the trial
     # issue 18's 2 % key maximum is NOT met reliably: 1.9-2.3 % with the benchmark's noise
-    # sequence, 3.0-4.5 % with this one (the release's end, where the slow fall model and
-    # the demand's floor at 0 meet); RMS 0.5-1.1 %
+    # sequence, 3.0-5.2 % with this one (seeds 1-5 of this test: 4.46, 5.19, 4.39, 3.33,
+    # 3.05 %; the release's end, where the slow fall model and the demand's floor at 0
+    # meet); RMS 0.5-1.1 %. No demand whose drive mode switches at most twice reaches 2 %
+    # on forte (test_no_release_with_one_mode_switch_reaches_2_percent_on_forte)
     assert k["max_pct"] <= 5.0 and k["rms_pct"] <= 1.2
     assert best["rms_pct"] <= 1.5
 
@@ -540,3 +542,65 @@ def test_a_nearly_noise_free_load_cell_does_not_make_the_rise_fall_inversion_cha
     assert lrn.stopped is None
     assert best_key(lrn, keys)[1]["max_pct"] <= 5.0
     assert np.sum(np.diff(np.sign(np.diff(lrn.u))) != 0) < 120   # ~190 without the damping
+
+
+# ---- the offline bound: the best any feedforward can reach on the drive model ----
+
+def _feasible_reference(model, n: int = 60):
+    """A demand within the limits (rises at 5 N per cycle, holds, falls) and the model's
+    key force for it: a reference some demand tracks exactly."""
+    d = np.r_[np.linspace(0, 20, 5), np.full(20, 20.0), np.linspace(18, 0, 10), np.zeros(n - 35)]
+    return d, np.maximum(model.simulate(d, HZ), 0.0)
+
+
+@pytest.mark.parametrize("which", [0, 1])
+def test_fixed_modes_bound_is_zero_for_a_reference_a_demand_tracks(which):
+    from rig.control import bound, plant
+
+    model = plant.thesis_models()[which]
+    d, r = _feasible_reference(model)
+    b = bound.fixed_modes(model, r, model.modes(d), CFG.limits, HZ)
+    assert b.max_error_n < 1e-5 and b.dual_bound_n < 1e-5   # the LP finds it
+    step = CFG.limits.max_rate_n_per_s / HZ
+    assert b.demand.min() >= 0 and np.abs(np.diff(np.r_[0.0, b.demand])).max() <= step + 1e-12
+
+
+def test_fixed_modes_bound_of_a_step_no_demand_can_follow():
+    # r jumps to 10 N at cycle 1: y_1 = G[1, 0] d_0 with d_0 <= 10 N (the rate limit), so
+    # no demand has an error below 10 - 10 G[1, 0] (and the bound is what it plays)
+    from rig.control import bound, plant
+
+    model = plant.thesis_models()[0]
+    r = np.r_[0.0, np.full(49, 10.0)]
+    b = bound.fixed_modes(model, r, np.ones(50, bool), CFG.limits, HZ)
+    g10 = bound.lifted(model, np.ones(50, bool), HZ)[1, 0]
+    assert b.max_error_n >= 10.0 - 10.0 * g10 - 1e-9
+    assert b.max_error_n == pytest.approx(b.dual_bound_n, abs=1e-6)
+
+
+def test_best_demand_finds_the_modes_of_a_trackable_rise_fall_reference():
+    from rig.control import bound, plant
+
+    model = plant.thesis_models()[1]
+    d, r = _feasible_reference(model, 40)
+    b = bound.best_demand(model, r, CFG.limits, HZ, time_limit_s=60)
+    assert b.max_error_n < 1e-3 and b.dual_bound_n <= b.max_error_n + 1e-9
+    wrong = bound.fixed_modes(model, r, np.ones(40, bool), CFG.limits, HZ)   # never falling
+    assert wrong.max_error_n > 0.1
+
+
+def test_no_release_with_one_mode_switch_reaches_2_percent_on_forte():
+    # the offline bound (benchmarks/tracking_bound.py): with the rise/fall drive, any
+    # demand that rises and then falls (one mode switch, from any cycle around the release)
+    # leaves >= 2.5 % of forte's peak on the true key force, noise-free and with the exact
+    # model; the single model's bound is 0.8 % (issue 18's 2 % is reachable there)
+    from rig.control import bound, plant
+
+    p, r, _ = grid("forte")
+    single, risefall = plant.thesis_models()
+    n = r.size
+    errs = [bound.fixed_modes(risefall, r, np.arange(n) < k, CFG.limits, HZ).max_error_n
+            for k in range(136, 152, 2)]
+    assert 100 * min(errs) / p.peak == pytest.approx(2.536, abs=0.01)
+    assert 100 * bound.fixed_modes(single, r, np.ones(n, bool), CFG.limits,
+                                   HZ).max_error_n / p.peak < 0.85

@@ -88,8 +88,11 @@ class DriveModel:
     rise: ProcessModel
     fall: ProcessModel
 
-    def _modes(self, d: np.ndarray) -> np.ndarray:
+    def modes(self, d: np.ndarray) -> np.ndarray:
         """True where cycle j's demand is played with the rising model."""
+        return self._modes(np.asarray(d, float))
+
+    def _modes(self, d: np.ndarray) -> np.ndarray:
         rising = np.empty(d.size, bool)
         state, last = True, 0.0
         for j, x in enumerate(d):

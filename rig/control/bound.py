@@ -1,0 +1,222 @@
+"""The best tracking any feedforward can reach on a drive model (issue 18): an offline bound.
+
+What no learner can beat, noise-free, with the loop's limits (``motor_torque.Limiter``:
+demand in [0, max_force], change per cycle <= max_rate x dt, from 0 before the trial):
+the minimax error max_j |r_j - max(y_j, 0)| over every demand sequence on the 500 Hz
+grid, ``y`` the lifted drive model (``rig.control.plant.DriveModel``, whose rise/fall
+mode follows the demand's direction: rising after an increase, falling after a
+decrease, else as before).
+
+* ``fixed_modes``: the mode sequence given; the model is then linear, the problem a
+  linear programme (HiGHS). The mode constraints (an increase where rising, a decrease
+  where falling; a switch needs a change of at least ``SWITCH_STEP_N`` in its
+  direction) make the demand found play those modes exactly.
+* ``best_demand``: the modes free as well: a mixed-integer linear programme (the
+  state at each cycle, each mode's transition bounded by big-M constraints on a
+  binary per cycle), optionally with at most ``max_switches`` mode changes; solved to
+  a time limit, so the demand found is achievable (its error by simulation) and
+  ``dual_bound_n`` is what no demand can beat.
+
+The key force reads 0 while the model's state is below zero (the drive pushes only),
+so an error constraint's lower side applies only where r_j exceeds the error allowed
+(found by iterating the bound). SI units: forces N, rates N/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
+from scipy.sparse import coo_matrix
+
+from rig.config import Limits
+from rig.control import plant
+from rig.errors import InputError
+
+SWITCH_STEP_N = 1e-3   # the smallest demand change a mode switch is counted with (N)
+
+
+@dataclass(frozen=True)
+class Bound:
+    max_error_n: float        # the demand's maximum key-force error, by simulation (N)
+    demand: np.ndarray        # the demand sequence (N per cycle)
+    rising: np.ndarray        # its modes (True: the rising model)
+    dual_bound_n: float = 0.0  # no demand has a smaller maximum error (N)
+    optimal: bool = True
+
+    @property
+    def switches(self) -> int:
+        return int(np.sum(self.rising[1:] != self.rising[:-1]) + (not self.rising[0]))
+
+
+def lifted(model: plant.DriveModel, rising: np.ndarray, control_hz: float) -> np.ndarray:
+    """y = G d for the mode sequence ``rising`` (N x N, strictly lower triangular; the
+    state below zero kept, as the model's)."""
+    dt = 1.0 / control_hz
+    ar, br = model.rise.discrete(dt)
+    af, bf = model.fall.discrete(dt)
+    n = rising.size
+    G = np.zeros((n, n))
+    X = np.zeros((3, n))
+    for j in range(n - 1):
+        A, B = (ar, br) if rising[j] else (af, bf)
+        X[:, :j] = A @ X[:, :j]
+        X[:, j] = B
+        G[j + 1, : j + 1] = X[0, : j + 1]
+    return G
+
+
+def _error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> float:
+    return float(np.abs(r - np.maximum(model.simulate(d, hz), 0.0)).max())
+
+
+def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarray,
+                limits: Limits, control_hz: float) -> Bound:
+    """The minimax demand for the mode sequence ``rising`` (a linear programme)."""
+    r = np.asarray(reference, float)
+    rising = np.asarray(rising, bool)
+    n = r.size
+    if rising.shape != r.shape:
+        raise InputError(f"modes: expected {n} points, got {rising.size}")
+    G = lifted(model, rising, control_hz)
+    step = limits.max_rate_n_per_s / control_hz
+    D = np.eye(n) - np.eye(n, k=-1)          # d_j - d_{j-1}, d_{-1} = 0
+    one, z = np.ones((n, 1)), np.zeros((n, 1))
+    two_modes = model.rise != model.fall
+    prev = np.r_[True, rising[:-1]]
+    sgn = np.where(rising, -1.0, 1.0)         # rising: -(d_j - d_{j-1}) <= -switch
+
+    def lp(lower: np.ndarray) -> tuple[float, np.ndarray | None]:
+        rows = [np.hstack([G, -one]), np.hstack([-G[lower], -one[lower]]),
+                np.hstack([D, z]), np.hstack([-D, z])]
+        rhs = [r, -r[lower], np.full(n, step), np.full(n, step)]
+        if two_modes:
+            rows.append(np.hstack([sgn[:, None] * D, z]))
+            rhs.append(-np.where(rising != prev, SWITCH_STEP_N, 0.0))
+        res = linprog(np.r_[np.zeros(n), 1.0], A_ub=np.vstack(rows), b_ub=np.concatenate(rhs),
+                      bounds=[(0.0, limits.max_force_n)] * n + [(0.0, None)], method="highs")
+        return (float(res.x[-1]), res.x[:n]) if res.status == 0 else (np.inf, None)
+
+    t = 0.0
+    d: np.ndarray | None = None
+    for _ in range(20):   # the lower sides where r_j > t, t the bound: a fixed point
+        lower = r > t + 1e-9
+        t_new, d = lp(lower)
+        if d is None or np.array_equal(r > t_new + 1e-9, lower):
+            t = t_new
+            break
+        t = t_new
+    if d is None:
+        raise InputError("fixed_modes: no demand plays this mode sequence within the limits")
+    d = _clean(d, rising, limits, control_hz)
+    return Bound(_error(model, r, d, control_hz), d, rising, t)
+
+
+def _clean(d: np.ndarray, rising: np.ndarray, limits: Limits, control_hz: float) -> np.ndarray:
+    """The solver's demand without changes below its tolerance (which would switch the
+    modes where the solution keeps them) or beyond the rate limit by its tolerance."""
+    step = limits.max_rate_n_per_s / control_hz
+    diff = np.clip(np.diff(np.r_[0.0, np.clip(d, 0.0, limits.max_force_n)]), -step, step)
+    prev = np.r_[True, rising[:-1]]
+    small = np.abs(diff) < 0.1 * SWITCH_STEP_N
+    diff[small & (rising == prev)] = 0.0
+    return np.clip(np.cumsum(diff), 0.0, limits.max_force_n)
+
+
+def best_demand(model: plant.DriveModel, reference: np.ndarray, limits: Limits,
+                control_hz: float, *, max_switches: int | None = None,
+                time_limit_s: float = 60.0, error_hint_n: float = 0.0,
+                switch_step_n: float = SWITCH_STEP_N) -> Bound:
+    """The minimax demand with the modes free (a mixed-integer programme, HiGHS, to
+    ``time_limit_s``). ``switch_step_n``: the smallest demand change a mode switch is made
+    with (larger: only reversals of that size). ``error_hint_n``: the error expected; the
+    lower side of the error constraint is kept only where r_j exceeds it (0: everywhere
+    r_j > 0, which can only make the bound larger)."""
+    r = np.asarray(reference, float)
+    n = r.size
+    dt = 1.0 / control_hz
+    S = np.diag([1.0, dt, dt * dt])        # the state in N, N per cycle, N per cycle^2
+    Si = np.linalg.inv(S)
+    mats = [(S @ A @ Si, S @ B) for A, B in (model.rise.discrete(dt), model.fall.discrete(dt))]
+    step = limits.max_rate_n_per_s * dt
+    xb = np.array([2.0, 1.0, 1.0]) * (2.0 * limits.max_force_n)   # generous state bounds
+    M = 3.0 * xb
+    nx = 3 * (n - 1)                       # x_1 .. x_{n-1} (x_0 = 0), d_0 .. d_{n-1},
+    it = nx + 2 * n                        # b_0 .. b_{n-1} (1: rising), t, s_0 .. s_{n-1}
+    nv = it + 1 + n
+    rows: list[int] = []
+    cols: list[int] = []
+    vals: list[float] = []
+    lo: list[float] = []
+    hi: list[float] = []
+
+    def add(c: dict[int, float], low: float, high: float) -> None:
+        k = len(lo)
+        for col, v in c.items():
+            rows.append(k)
+            cols.append(col)
+            vals.append(v)
+        lo.append(low)
+        hi.append(high)
+
+    def ix(j: int, k: int) -> int:
+        return 3 * (j - 1) + k
+
+    for j in range(n - 1):
+        for m, (A, B) in enumerate(mats):   # m = 0: rising (b = 1), 1: falling (b = 0)
+            for k in range(3):
+                c = {ix(j + 1, k): 1.0, nx + j: -float(B[k])}
+                if j >= 1:
+                    for q in range(3):
+                        c[ix(j, q)] = c.get(ix(j, q), 0.0) - float(A[k, q])
+                b = nx + n + j
+                if m == 0:   # |x_{j+1} - A_r x_j - B_r d_j| <= M (1 - b)
+                    add({**c, b: M[k]}, -np.inf, M[k])
+                    add({**c, b: -M[k]}, -M[k], np.inf)
+                else:        # |x_{j+1} - A_f x_j - B_f d_j| <= M b
+                    add({**c, b: -M[k]}, -np.inf, 0.0)
+                    add({**c, b: M[k]}, 0.0, np.inf)
+    eps = switch_step_n
+    for j in range(n):
+        c = {nx + j: 1.0}
+        if j:
+            c[nx + j - 1] = -1.0
+        add(c, -step, step)                 # the rate limit
+        b, bp = nx + n + j, nx + n + j - 1
+        # modes: diff >= -step (1 - b_j) + eps (b_j - b_{j-1}),
+        #        diff <= step b_j - eps (b_{j-1} - b_j)   (b_{-1} = 1: starts rising)
+        if j:
+            add({**c, b: -step - eps, bp: eps}, -step, np.inf)
+            add({**c, b: -step - eps, bp: eps}, -np.inf, 0.0)
+            add({nx + 2 * n + 1 + j: 1.0, b: -1.0, bp: 1.0}, 0.0, np.inf)   # s_j >= |b_j -
+            add({nx + 2 * n + 1 + j: 1.0, b: 1.0, bp: -1.0}, 0.0, np.inf)   # b_{j-1}|
+        else:
+            add({**c, b: -step - eps}, -step - eps, np.inf)
+            add({**c, b: -step - eps}, -np.inf, -eps)
+            add({nx + 2 * n + 1: 1.0, b: 1.0}, 1.0, np.inf)
+        if j >= 1:                          # the error at cycle j
+            add({ix(j, 0): 1.0, it: -1.0}, -np.inf, float(r[j]))
+            if r[j] > error_hint_n:
+                add({ix(j, 0): 1.0, it: 1.0}, float(r[j]), np.inf)
+        elif r[0] > error_hint_n:
+            add({it: 1.0}, float(r[0]), np.inf)
+    if max_switches is not None:
+        add({nx + 2 * n + 1 + j: 1.0 for j in range(n)}, 0.0, float(max_switches))
+    A = coo_matrix((vals, (rows, cols)), shape=(len(lo), nv)).tocsr()
+    lb = np.r_[np.tile(-xb, n - 1), np.zeros(2 * n), 0.0, np.zeros(n)]
+    ub = np.r_[np.tile(xb, n - 1), np.full(n, limits.max_force_n), np.ones(n), np.inf,
+               np.ones(n)]
+    integrality = np.r_[np.zeros(nx + n), np.ones(n), 0.0, np.zeros(n)]
+    cost = np.zeros(nv)
+    cost[it] = 1.0
+    res = milp(cost, constraints=LinearConstraint(A, np.array(lo), np.array(hi)),
+               integrality=integrality, bounds=Bounds(lb, ub),
+               options={"time_limit": time_limit_s, "mip_rel_gap": 1e-4})
+    if res.x is None:
+        raise InputError(f"best_demand: no demand found ({res.message})")
+    rising = np.round(res.x[nx + n: nx + 2 * n]).astype(bool)
+    d = _clean(res.x[nx: nx + n], rising, limits, control_hz)
+    dual = float(getattr(res, "mip_dual_bound", 0.0) or 0.0)
+    return Bound(_error(model, r, d, control_hz), d, model.modes(d), max(dual, 0.0),
+                 res.status == 0)
