@@ -834,11 +834,11 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     can leave several minima along a curved valley of the cost, and their curvature
     correlation need not show it (measured: |r| 0.1-0.8 between two such minima); the
     curvature uncertainty at one minimum is then not the uncertainty. So, given the minima
-    ``_restarts`` found (the set's own first), the final set is (1) scored along the line
-    its data pin down least (``_Line``), doubling out from
-    two standard deviations each way and bisecting ``VALLEY_BISECTIONS`` times; (2) for
-    each pair correlated by ``VALLEY_CORR`` or more, scored along its curved valley the
-    same way, moving one and refitting the other. A minimum or value whose held-out
+    ``_restarts`` found (the set's own first), a set of two or more parameters is (1)
+    scored along the line its data pin down least (``_Line``), doubling out from two
+    standard deviations each way and bisecting ``VALLEY_BISECTIONS`` times; (2) for each
+    pair correlated by ``VALLEY_CORR`` or more, scored along its curved valley the same
+    way, moving one and refitting the other. A minimum or value whose held-out
     residual is not significantly worse than the best one's (one-sided HAC test at
     ``alpha``) is as plausible: the values stay the final fit's, and each parameter's
     uncertainty widens to span every plausible minimum's 95 % interval and every plausible
