@@ -14,6 +14,15 @@ set recovery (the chosen set is exactly the hidden set), the false-alarm rate (`
 anything chosen), the coverage of the stated 95 % intervals (|value - truth| <= 1.96
 sigma) over every fitted parameter of a correctly chosen effect, and the time per
 diagnose.
+
+``--vary`` draws, per seed, what the fixed suite keeps fixed (the hidden-effect cases a
+product is judged on differ from its tests in all of these): each fitted parameter of a
+hidden effect (x 0.5-0.75 or x 1.35-2.2 of its default, log-uniform, within its bounds;
+a parameter whose default is 0 at 5-15 % of its upper bound), both blows (a forte-like
+blow of 25-32 N with its rise, hold and release times, and a softer one of 14-24 N), the
+noise level (x 0.7-1.5, log-uniform), the load-cell filter's cutoff when it is hidden
+(50-200 Hz) and the window (each trial's default, bounded by its events, in 2 of 5
+seeds; else the first 0.12-0.22 s). The draws are printed with each seed.
 """
 
 from __future__ import annotations
@@ -39,6 +48,8 @@ def main() -> None:
     ap.add_argument("--cases", default=DEFAULT_CASES)
     ap.add_argument("--duration", type=float, default=0.15)
     ap.add_argument("--jobs", type=int, default=None)
+    ap.add_argument("--vary", action="store_true",
+                    help="draw effect values, blows, noise, filter and window per seed")
     args = ap.parse_args()
 
     sys.path.insert(0, str(ROOT / "tests"))
@@ -53,21 +64,32 @@ def main() -> None:
     print(f"{'case':<46}{'top-1':>8}{'set':>8}{'alarm':>8}{'cover95':>12}{'s/diag':>8}")
     for case in args.cases.split(","):
         hidden = [] if case == "none" else case.removeprefix("pair:").split("+")
-        truth_effects = [{n: truth_values(BUILTIN[n])} for n in hidden if n not in SENSOR_SIDE]
         filtered = any(n in SENSOR_SIDE for n in hidden)
-        truth = ActionModel(effects=truth_effects)
         top1 = exact = alarms = covered = checked = 0
         times = []
         per_param: dict[str, list[float]] = {}  # z = (value - truth) / sigma per seed
         for seed in range(args.first_seed, args.first_seed + args.seeds):
+            if args.vary:
+                draw = varied(case, seed, hidden)
+                values, profs = draw["values"], draw["blows"]
+                duration, noise = draw["duration"], draw["noise"]
+                cfg = synth.default_rig()
+                if filtered:
+                    cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(
+                        update={"load_cell_filter_hz": draw["filter_hz"]})})
+                print(f"  seed {seed}: {draw['text']}", flush=True)
+            else:
+                values = {n: truth_values(BUILTIN[n]) for n in hidden}
+                profs, duration, noise, cfg = blows(), args.duration, 1.0, None
+            truth = ActionModel(effects=[{n: values[n]} for n in hidden
+                                         if n not in SENSOR_SIDE])
             with tempfile.TemporaryDirectory() as tmp:
                 run = Path(tmp) / "run.h5"
-                synth.synth(truth, blows(), run, seed=seed, duration=args.duration,
-                            load_cell_filter=filtered)
+                synth.synth(truth, profs, run, cfg=cfg, seed=seed, duration=duration,
+                            load_cell_filter=filtered, noise_scale=noise)
                 meas = ms.load(run)
                 t0 = time.perf_counter()
-                diag = dg.diagnose(ActionModel(), meas, duration=args.duration,
-                                   jobs=args.jobs)
+                diag = dg.diagnose(ActionModel(), meas, duration=duration, jobs=args.jobs)
                 times.append(time.perf_counter() - t0)
             names = diag.chosen_names
             top1 += bool(names) and names[0] in hidden
@@ -77,7 +99,7 @@ def main() -> None:
             for n in names:
                 if n not in hidden or n in SENSOR_SIDE:
                     continue
-                for p, v in truth_values(BUILTIN[n]).items():
+                for p, v in values[n].items():
                     key = f"{n}.{p}"
                     if final is None or key not in final.values:
                         continue
@@ -88,7 +110,7 @@ def main() -> None:
             print(f"  seed {seed}: chose {names or 'nothing'} in {times[-1]:.1f} s",
                   flush=True)
             for note in diag.notes:
-                if note.startswith("valley"):
+                if note.startswith(("valley", "refitted")):
                     print(f"    {note}", flush=True)
         k = args.seeds
         cover = f"{covered}/{checked}" if checked else "-"
@@ -101,6 +123,53 @@ def main() -> None:
             rms = statistics.fmean(z * z for z in zs) ** 0.5
             print(f"    {key:<40} covered {inside}/{len(zs)}, z mean "
                   f"{statistics.fmean(zs):+.2f}, z rms {rms:.2f} (1 if honest)", flush=True)
+
+
+def varied(case: str, seed: int, hidden: list[str]) -> dict:
+    """One seed's draws for ``--vary`` (reproducible from the case and the seed)."""
+    import zlib
+
+    import numpy as np
+
+    from rig import profiles
+    from rig.model.effects import BUILTIN
+
+    rng = np.random.default_rng([seed, zlib.crc32(case.encode())])
+
+    def away() -> float:  # a factor off the default: x 0.5-0.75 or x 1.35-2.2
+        lo, hi = (0.5, 0.75) if rng.random() < 0.5 else (1.35, 2.2)
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+    values: dict[str, dict[str, float]] = {}
+    for n in hidden:
+        values[n] = {}
+        for p in BUILTIN[n].parameters:
+            if not p.fitted or n in SENSOR_SIDE:  # hidden in the sensor chain: filter_hz
+                continue
+            lo, hi = p.bounds
+            v = p.default * away() if p.default > 0 else hi * rng.uniform(0.05, 0.15)
+            values[n][p.name] = float(min(max(v, lo), hi))
+    peak_a, peak_b = rng.uniform(25.0, 32.0), rng.uniform(14.0, 24.0)
+    rise_a, rise_b = rng.uniform(0.06, 0.10), rng.uniform(0.07, 0.12)
+    hold_a, rel_a = rng.uniform(0.12, 0.20), rng.uniform(0.03, 0.05)
+    hold_b, rel_b = rng.uniform(0.12, 0.20), rng.uniform(0.03, 0.06)
+
+    def blow(peak: float, rise: float, hold: float, rel: float, name: str) -> profiles.Profile:
+        t = np.cumsum([0.0, 0.02, rise, hold, rel, 0.12])
+        return profiles.from_points(list(zip(t, [0, 0, peak, peak, 0, 0], strict=True)),
+                                    name=name)
+
+    duration = None if rng.random() < 0.4 else float(rng.uniform(0.12, 0.22))
+    noise = float(np.exp(rng.uniform(np.log(0.7), np.log(1.5))))
+    filter_hz = float(np.exp(rng.uniform(np.log(50.0), np.log(200.0))))
+    shown = ", ".join(f"{n}.{p} {v:.4g}" for n, ps in values.items() for p, v in ps.items())
+    text = (f"{shown + '; ' if shown else ''}blows {peak_a:.1f} N (rise {rise_a * 1e3:.0f} ms) "
+            f"and {peak_b:.1f} N (rise {rise_b * 1e3:.0f} ms); noise x{noise:.2f}; window "
+            + ("default" if duration is None else f"{duration:.3f} s")
+            + (f"; filter {filter_hz:.0f} Hz" if "load_cell_filter" in hidden else ""))
+    return {"values": values, "blows": [blow(peak_a, rise_a, hold_a, rel_a, "A"),
+                                        blow(peak_b, rise_b, hold_b, rel_b, "B")],
+            "duration": duration, "noise": noise, "filter_hz": filter_hz, "text": text}
 
 
 if __name__ == "__main__":
