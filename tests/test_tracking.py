@@ -573,7 +573,7 @@ def test_fixed_modes_bound_of_a_step_no_demand_can_follow():
     model = plant.thesis_models()[0]
     r = np.r_[0.0, np.full(49, 10.0)]
     b = bound.fixed_modes(model, r, np.ones(50, bool), CFG.limits, HZ)
-    g10 = bound.lifted(model, np.ones(50, bool), HZ)[1, 0]
+    g10 = model.lifted(np.ones(50, bool), HZ)[1, 0]
     assert b.max_error_n >= 10.0 - 10.0 * g10 - 1e-9
     assert b.max_error_n == pytest.approx(b.dual_bound_n, abs=1e-6)
 

@@ -50,23 +50,6 @@ class Bound:
         return int(np.sum(self.rising[1:] != self.rising[:-1]) + (not self.rising[0]))
 
 
-def lifted(model: plant.DriveModel, rising: np.ndarray, control_hz: float) -> np.ndarray:
-    """y = G d for the mode sequence ``rising`` (N x N, strictly lower triangular; the
-    state below zero kept, as the model's)."""
-    dt = 1.0 / control_hz
-    ar, br = model.rise.discrete(dt)
-    af, bf = model.fall.discrete(dt)
-    n = rising.size
-    G = np.zeros((n, n))
-    X = np.zeros((3, n))
-    for j in range(n - 1):
-        A, B = (ar, br) if rising[j] else (af, bf)
-        X[:, :j] = A @ X[:, :j]
-        X[:, j] = B
-        G[j + 1, : j + 1] = X[0, : j + 1]
-    return G
-
-
 def _error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> float:
     return float(np.abs(r - np.maximum(model.simulate(d, hz), 0.0)).max())
 
@@ -79,7 +62,7 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
     n = r.size
     if rising.shape != r.shape:
         raise InputError(f"modes: expected {n} points, got {rising.size}")
-    G = lifted(model, rising, control_hz)
+    G = model.lifted(rising, control_hz)
     step = limits.max_rate_n_per_s / control_hz
     D = np.eye(n) - np.eye(n, k=-1)          # d_j - d_{j-1}, d_{-1} = 0
     one, z = np.ones((n, 1)), np.zeros((n, 1))

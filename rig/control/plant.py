@@ -103,14 +103,6 @@ class DriveModel:
             rising[j], last = state, float(x)
         return rising
 
-    def _matrices(self, d: np.ndarray, dt: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        ar, br = self.rise.discrete(dt)
-        if self.fall == self.rise:
-            return [ar] * d.size, [br] * d.size
-        af, bf = self.fall.discrete(dt)
-        modes = self._modes(d)
-        return ([ar if m else af for m in modes], [br if m else bf for m in modes])
-
     def simulate(self, d: np.ndarray, control_hz: float) -> np.ndarray:
         """y_j: the force read at cycle j, before demand d_j is written (N); the drive
         pushes only (y >= 0; its state goes on below zero, as the simulated drive's)."""
@@ -151,22 +143,31 @@ class DriveModel:
             x = (ar @ x + br * (gain * d[j])) if rising else (af @ x + bf * (gain * d[j]))
         return y, d, free
 
+    def lifted(self, rising: np.ndarray, control_hz: float) -> np.ndarray:
+        """y = G d for the mode sequence ``rising`` (N x N, strictly lower triangular; the
+        state below zero kept, as the model's)."""
+        rising = np.asarray(rising, bool)
+        dt = 1.0 / control_hz
+        ar, br = self.rise.discrete(dt)
+        af, bf = (ar, br) if self.fall == self.rise else self.fall.discrete(dt)
+        n = rising.size
+        G = np.zeros((n, n))
+        X = np.zeros((3, n))   # column i: d x_j / d d_i
+        for j in range(n - 1):
+            A, B = (ar, br) if rising[j] else (af, bf)
+            X[:, :j] = A @ X[:, :j]
+            X[:, j] = B
+            G[j + 1, : j + 1] = X[0, : j + 1]
+        return G
+
     def jacobian(self, d: np.ndarray, control_hz: float) -> np.ndarray:
         """dy/dd at demand d (N x N, strictly lower triangular), its modes held fixed; zero
         rows where the force is clipped at 0."""
         d = np.asarray(d, float)
-        n = d.size
-        A, B = self._matrices(d, 1.0 / control_hz)
-        J = np.zeros((n, n))
-        X = np.zeros((3, n))   # column i: d x_j / d d_i
-        x = np.zeros(3)
-        for j in range(n - 1):
-            x = A[j] @ x + B[j] * d[j]
-            X[:, :j] = A[j] @ X[:, :j]
-            X[:, j] = B[j]
-            if x[0] > 0:
-                J[j + 1, : j + 1] = X[0, : j + 1]
-        return J
+        G = self.lifted(self._modes(d), control_hz)
+        G[G @ d <= 0] = 0.0
+        return G
+
 
 def thesis_models(params: Parameters | None = None) -> tuple[DriveModel, DriveModel]:
     """The thesis's single model and its rising/falling pair (Appendix D)."""
