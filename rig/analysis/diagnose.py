@@ -666,6 +666,7 @@ def _add_input_noise(final: Candidate, base: ActionModel,
 
 VALLEY_STARTS = (0.2, 0.8)    # refits along the valley: fractions of its span within bounds
 BOX_STARTS_PER_PARAM = 2      # refits from across the box of an input-moving effect's values
+SAME_MINIMUM = 1e-3           # a restart's minimum this close in training cost is the first's
 VALLEY_BISECTIONS = 3         # refinements of each end of the plausible stretch
 VALLEY_CORR = 0.9             # pairs correlated this strongly are walked along (curved)
 VALLEY_PARTNER_NFEV = 8       # evaluations of the partner's refit at each step
@@ -783,7 +784,7 @@ def _restarts(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Ef
         minima.append((cost, dict(res.values), dict(res.sigma), rs))
         corrs.append(_pair_corr(res))
     k = min(range(len(minima)), key=lambda i: minima[i][0])
-    if k == 0 or not minima[k][0] < minima[0][0] * (1 - 1e-6):
+    if k == 0 or not minima[k][0] < minima[0][0] * (1 - SAME_MINIMUM):
         return minima, []
     gap = _noise_free_gap(minima[0][1], minima[k][1], base, instances, targets, train)
     if gap is not None and not gap > 0:
@@ -796,8 +797,10 @@ def _restarts(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Ef
     final.train_cost = minima[k][0]
     minima.insert(0, minima.pop(k))
     shown = ", ".join(f"{n} {old[n]:.3g} -> {final.values[n]:.3g}" for n in labels)
-    return minima, [f"refitted from other starts: a minimum with {minima[1][0] / minima[0][0]:.3g} "
-                    f"times less training error than the first fit's ({shown})"]
+    ratio = minima[1][0] / minima[0][0]
+    less = f"{ratio:.3g} times" if ratio >= 2 else f"{(1 - 1 / ratio) * 100:.2g} %"
+    return minima, [f"refitted from other starts: a minimum with {less} less training error "
+                    f"than the first fit's ({shown})"]
 
 
 def _box_starts(final: Candidate, targets: Sequence[ft.Target],
@@ -876,15 +879,16 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     standard deviations each way and bisecting ``VALLEY_BISECTIONS`` times; (2) for each
     pair correlated by ``VALLEY_CORR`` or more, scored along its curved valley the same
     way, moving one and refitting the other. A minimum or value whose held-out
-    residual is not significantly worse than the best one's (one-sided test at ``alpha``)
-    is as plausible. The test, with ``noise_test`` and the measured force as the input,
-    draws the input's noise (``VALLEY_NOISE_DRAWS``, the same draws for both models;
-    ``stats.input_noise_mc_test``): the values along a drive's valley pass that noise
+    residual is not significantly worse than the best one's (one-sided tests at ``alpha``)
+    is as plausible: worse only if the HAC test says so and, with ``noise_test`` and the
+    measured force as the input, also a test that draws the input's noise
+    (``VALLEY_NOISE_DRAWS``, the same draws for both models;
+    ``stats.input_noise_mc_test``). The values along a drive's valley pass that noise
     differently, and a lower bandwidth fits the noisy force better on every realization
     (varied suite, seed 101: the truth's held-out error twice the best minimum's, HAC p =
-    0.005; with the noise drawn z = 1.3), so the HAC test, which takes the residual for
-    output noise, excluded the truth from the interval. Otherwise the HAC test. The values
-    stay the final fit's, and each parameter's
+    0.005; with the noise drawn z = 1.3): the HAC test alone, which takes the residual for
+    output noise, excluded the truth from the interval. The values stay the final fit's,
+    and each parameter's
     uncertainty widens to span every plausible minimum's 95 % interval and every plausible
     value. Says what it found in one line."""
     labels = list(final.values)
@@ -915,15 +919,15 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
         ref_resp = None
 
     def plausible(vals: Mapping[str, float], r: np.ndarray) -> bool:
-        """Not significantly worse than the best on the held-out data: with the input
-        force's noise accounted for (``stats.input_noise_mc_test``) where it can be drawn,
-        else the HAC test."""
-        if r is ref[3]:
+        """Not significantly worse than the best on the held-out data: unless both the HAC
+        test and, where the input force's noise can be drawn, the test with it drawn
+        (``stats.input_noise_mc_test``, run only when the HAC test says worse) say so."""
+        if r is ref[3] or stats.improvement_test(r, ref[3], segs)[1] >= alpha:
             return True
         resp = responses(vals, r) if ref_resp is not None else None
-        if resp is not None and ref_resp is not None:
-            return stats.input_noise_mc_test(r, ref[3], resp, ref_resp, out_sigma)[1] >= alpha
-        return stats.improvement_test(r, ref[3], segs)[1] >= alpha
+        if resp is None or ref_resp is None:
+            return False
+        return stats.input_noise_mc_test(r, ref[3], resp, ref_resp, out_sigma)[1] >= alpha
 
     def plausible_at(vals: dict[str, float]) -> dict[str, float] | None:
         try:
