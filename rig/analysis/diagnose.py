@@ -731,14 +731,14 @@ def _restarts(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Ef
               ) -> tuple[list[Minimum], list[str]]:
     """Refit the final set from ``VALLEY_STARTS`` along its least-determined line across
     the bounds (``_Line``; for one parameter, across its range) and, when it delays or
-    filters the input, from across the box of those values (``_box_starts``), and keep the
-    minimum the
-    training data favour once the input force's noise is taken out: a least-squares fit
-    from one start can stop on a shelf of the cost (a contact that starts or stops touching
-    as a parameter crosses a value; measured: felt_hysteresis' ratio stopped at 0.33 with a
-    cost 500 times the one at the truth, 0.458, from which the fit from above does not
-    move). If another start's minimum has a lower training cost that stays lower when the
-    cost is extrapolated to a noise-free input force (``_noise_free_gap``), the set takes
+    filters the input, from across the box of those values (``_box_starts``), and keep
+    the minimum the training data favour once the input force's noise is taken out: a
+    least-squares fit from one start can stop on a shelf of the cost (a contact that
+    starts or stops touching as a parameter crosses a value; measured: felt_hysteresis'
+    ratio stopped at 0.33 with a cost 500 times the one at the truth, 0.458, from which the
+    fit from above does not move). If another start's minimum has a lower training cost
+    that stays lower when the cost is extrapolated to a noise-free input force
+    (``_noise_free_gap``), the set takes
     its values, uncertainties and correlations (the held-out scores stay those the set was
     judged by). The model is driven by the measured, noisy force and integrates its noise
     into the motion, so a set that low-passes or delays the input can buy a lower cost
@@ -811,9 +811,9 @@ def _box_starts(final: Candidate, targets: Sequence[ft.Target],
 
     Their valley is long and its minima far apart: a hidden drive of 3.7 ms, 168 Hz
     (varied suite, seed 100) has minima near 0.6 ms, 49 Hz and 4.6-4.9 ms, 350-800 Hz
-    with training costs within 20 % of each other, and a start on the line through one of
-    them does not reach the other (the fits from it stayed at the low-bandwidth end in 5 of
-    5 seeds, whose truth was between). Started from across the box, fits end at both."""
+    with training costs within 20 % of each other; the fit from the candidate scan's start
+    ended at the low-bandwidth end in 5 of 5 varied seeds, whose truth lay between, and the
+    line's starts did not always leave it. Started from across the box, fits end at both."""
     from scipy.stats import qmc
 
     kinds = [by_name[n] for n in final.effects or (final.name,)]
