@@ -229,6 +229,52 @@ def test_noise_model_test_holds_its_level_and_keeps_its_power_beside_another_mis
     assert found_hac < found_noise, (found_hac, found_noise)
 
 
+def test_input_noise_mc_test_holds_its_level_when_one_model_filters_the_noise() -> None:
+    # two models equally right but for how they pass the input's noise: model 1 low-passes
+    # it (a drive of lower bandwidth), so on every realization it fits the noisy data
+    # better; that is not evidence against model 0. The linear-projection and HAC tests
+    # call it significant; the Monte Carlo test holds its level, and finds a real misfit.
+    from scipy.signal import butter, sosfilt
+
+    rng = np.random.default_rng(5)
+    t = np.arange(N) / 2000
+    sos = butter(2, 40.0, fs=2000.0, output="sos")
+    out_sigma = np.full(N, 0.05)
+
+    def response(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ring = lfilter([1.0], [1, -2 * 0.97 * math.cos(2 * math.pi * 100 / 2000), 0.97 ** 2], e)
+        slow = lfilter([1.0], [1, -0.99], e)
+        g0 = 0.05 * ring + 0.02 * slow
+        return g0, sosfilt(sos, g0)
+
+    def draws(k: int) -> tuple[np.ndarray, np.ndarray]:
+        pairs = [response(rng.standard_normal(N)) for _ in range(k)]
+        return -np.array([a for a, _ in pairs]), -np.array([b for _, b in pairs])
+
+    alarms = alarms_linear = 0
+    reps = 300
+    for _ in range(reps):
+        g0, g1 = response(rng.standard_normal(N))
+        out = out_sigma * rng.standard_normal(N)
+        r0, r1 = out - g0, out - g1
+        d0, d1 = draws(16)
+        alarms += stats.input_noise_mc_test(r0, r1, d0, d1, out_sigma)[1] <= 0.05
+        alarms_linear += stats.noise_model_test(r0, r1, out_sigma, d1)[1] <= 0.05
+    assert alarms / reps <= 0.08, alarms / reps
+    assert alarms_linear / reps > 0.5, alarms_linear / reps   # what the old test said
+    found = 0
+    for _ in range(100):
+        g0, g1 = response(rng.standard_normal(N))
+        out = out_sigma * rng.standard_normal(N)
+        miss = 0.9 * np.sin(2 * math.pi * 12 * t)  # model 0's real misfit
+        d0, d1 = draws(16)
+        found += stats.input_noise_mc_test(miss + out - g0, out - g1, d0, d1,
+                                           out_sigma)[1] <= 0.05
+    print(f"false alarms {alarms / reps:.3f} (linear {alarms_linear / reps:.3f}); "
+          f"misfit found {found}/100")
+    assert found >= 80, found
+
+
 def test_default_window_ends_at_the_keys_release() -> None:
     from rig.analysis import measurement as ms
 

@@ -112,6 +112,40 @@ def noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
     return z, 0.5 * math.erfc(z / math.sqrt(2))
 
 
+def input_noise_mc_test(r0: np.ndarray, r1: np.ndarray, responses0: np.ndarray,
+                        responses1: np.ndarray, out_sigma: np.ndarray | None = None
+                        ) -> tuple[float, float]:
+    """One-sided test that model 1's residuals ``r1`` are smaller in mean square than model
+    0's ``r0`` on the same held-out samples once the input force's noise is accounted for,
+    when the two models pass that noise differently (a low-pass or a delay in one of them):
+    (z, p).
+
+    ``responses0``/``responses1`` are each model's response to the same draws of fresh
+    input noise (rows; ``fit.input_noise_responses`` with one seed). Each draw gives the
+    statistic ``d_k = ms(r0 + R0_k) - ms(r1 + R1_k)`` with one more unit of the noise; the
+    observed ``d = ms(r0) - ms(r1)`` holds one unit (the data's own), so ``mean(d_k) - d``
+    estimates what the noise alone adds to ``d`` (a model that filters it more fits the
+    noisy force better for that alone), subtracted as in SIMEX, and ``var(d_k)`` is the
+    spread the noise gives ``d`` -- the quadratic part too, which ``noise_model_test``'s
+    linear projection leaves out. White output noise of level ``out_sigma`` adds
+    ``4 sum(delta^2 sigma^2) / n^2``. Needs at least 2 draws; (0, 1) otherwise."""
+    r0, r1 = np.asarray(r0, float), np.asarray(r1, float)
+    R0, R1 = np.asarray(responses0, float), np.asarray(responses1, float)
+    if (r0.shape != r1.shape or r0.size < 4 or R0.ndim != 2 or R0.shape != R1.shape
+            or R0.shape[0] < 2 or R0.shape[1] != r0.size):
+        return 0.0, 1.0
+    d = float(np.mean(r0 ** 2) - np.mean(r1 ** 2))
+    dk = np.mean((r0[None, :] + R0) ** 2, axis=1) - np.mean((r1[None, :] + R1) ** 2, axis=1)
+    var = float(np.var(dk, ddof=1))
+    if out_sigma is not None:
+        var += 4.0 * float(np.sum((r0 - r1) ** 2 * np.asarray(out_sigma, float) ** 2)) \
+            / r0.size ** 2
+    if not var > 0:
+        return 0.0, 1.0
+    z = (d - (float(np.mean(dk)) - d)) / math.sqrt(var)
+    return z, 0.5 * math.erfc(z / math.sqrt(2))
+
+
 def mean_test(d: np.ndarray, segments: Sequence[int], noise: np.ndarray | None = None
               ) -> tuple[float, float]:
     """One-sided test that the mean of ``d`` is > 0 with a HAC variance of the mean of
