@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/simulate.py --quick    # skip the plain-numpy BDF reference
     .venv/bin/python benchmarks/simulate.py --quick --integrator dopri54   # another integrator
     .venv/bin/python benchmarks/simulate.py --quick --breakdown   # where the time goes
+    .venv/bin/python benchmarks/simulate.py --quick --axial-coupling one_way   # an option
 
 Prints, for the rigid base model and the full model (flexible shank + key
 lift-off): wall time of ``ActionModel.simulate`` (best and median of N runs,
@@ -32,12 +33,18 @@ ROOT = Path(__file__).resolve().parents[1]
 MODELS = {"rigid": [], "full": ["flexible_shank", "key_liftoff"]}
 
 
-def _model(effects: list[str], integrator: str | None) -> ActionModel:
-    """The model with its default integrator, or the named one at the model's tolerances."""
+def _model(effects: list[str], integrator: str | None,
+           coupling: str | None = None) -> ActionModel:
+    """The model with its default integrator, or the named one at the model's tolerances;
+    ``coupling``: hammer_shank_axial.coupling (the shank's axial coordinate), if given."""
     from rig.model.action import ActionModel
     from rig.model.integration import by_name
+    from rig.params import Parameters
 
-    model = ActionModel(effects=effects)
+    params = Parameters.default()
+    if coupling:
+        params.set("hammer_shank_axial.coupling", coupling)
+    model = ActionModel(params, effects=effects)
     if integrator:
         num = model.params.tree["numerics"]
         model.integrator = by_name(integrator, rtol=num["rtol"], max_step=num["max_step"])
@@ -45,11 +52,11 @@ def _model(effects: list[str], integrator: str | None) -> ActionModel:
 
 
 def measure(effects: list[str], repeats: int, integrator: str | None,
-            pause: float = 0.0) -> dict[str, float]:
+            pause: float = 0.0, coupling: str | None = None) -> dict[str, float]:
     from rig import profiles
 
     profile = profiles.load(ROOT / "profiles" / "forte.yaml")
-    model = _model(effects, integrator)
+    model = _model(effects, integrator, coupling)
     model.simulate(profile)  # compile and find the rest state outside the timing
     walls, res = [], None
     for _ in range(repeats):
@@ -65,7 +72,8 @@ def measure(effects: list[str], repeats: int, integrator: str | None,
             "success": float(res.success)}
 
 
-def breakdown(effects: list[str], repeats: int, integrator: str | None) -> dict[str, float]:
+def breakdown(effects: list[str], repeats: int, integrator: str | None,
+              coupling: str | None = None) -> dict[str, float]:
     """Best times of a blow's parts: integration (with the state output), channel
     output, events and result; and one compiled right-hand side on the blow's states."""
     import numpy as np
@@ -80,7 +88,7 @@ def breakdown(effects: list[str], repeats: int, integrator: str | None) -> dict[
             k.rhs(0.0, states[i], forces[i], arrays, ws, dy)
 
     profile = profiles.load(ROOT / "profiles" / "forte.yaml")
-    model = _model(effects, integrator)
+    model = _model(effects, integrator, coupling)
     ft, ff = model.input_force(profile)
     model.simulate(profile)
     best = {"integrate_s": np.inf, "channels_s": np.inf, "result_s": np.inf, "rhs_s": np.inf}
@@ -111,12 +119,12 @@ def breakdown(effects: list[str], repeats: int, integrator: str | None) -> dict[
     return best
 
 
-def reference(effects: list[str]) -> dict[str, float]:
+def reference(effects: list[str], coupling: str | None = None) -> dict[str, float]:
     """The same blow with scipy BDF on the uncompiled right-hand side, in a subprocess."""
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     code = ("import json, sys; sys.path.insert(0, {!r}); import simulate as b; "
-            "print(json.dumps(b.measure({!r}, 1, 'scipy-BDF')))".format(str(ROOT / "benchmarks"),
-                                                                   effects))
+            "print(json.dumps(b.measure({!r}, 1, 'scipy-BDF', 0.0, {!r})))".format(
+                str(ROOT / "benchmarks"), effects, coupling))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                          check=True, cwd=ROOT)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -134,10 +142,14 @@ def main() -> None:
                     help="also time integration, channel output and one RHS separately")
     ap.add_argument("--integrator", default=None,
                     help="integrator name (rig.model.integration.by_name); default: the model's")
+    ap.add_argument("--axial-coupling", default=None, choices=["two_way", "one_way"],
+                    help="hammer_shank_axial.coupling for the full model (default: the "
+                         "parameters'); one_way is an approximation, docs/model.md")
     args = ap.parse_args()
     for name in args.models:
         effects = MODELS[name]
-        m = measure(effects, args.repeats, args.integrator, args.pause)
+        coupling = args.axial_coupling if "flexible_shank" in effects else None
+        m = measure(effects, args.repeats, args.integrator, args.pause, coupling)
         ratio = m["wall_best_s"] / m["simulated_s"]
         print(f"[{name}] {m['integrator']}: wall best {m['wall_best_s'] * 1e3:.1f} ms, median "
               f"{m['wall_median_s'] * 1e3:.1f} ms for {m['simulated_s']:.3f} s simulated; "
@@ -145,14 +157,14 @@ def main() -> None:
               f"{m['steps']:.0f} steps, {m['rhs_calls']:.0f} RHS calls")
         print(f"[{name}] strike {m['strike_s'] * 1e3:.3f} ms at {m['strike_speed_m_s']:.4f} m/s")
         if args.breakdown:
-            b = breakdown(effects, args.repeats, args.integrator)
+            b = breakdown(effects, args.repeats, args.integrator, coupling)
             print(f"[{name}] breakdown (best): integration {b['integrate_s'] * 1e3:.1f} ms "
                   f"({b['steps']:.0f} steps); result {b['result_s'] * 1e3:.1f} ms, of which "
                   f"channel output {b['channels_s'] * 1e3:.1f} ms ({b['rows']:.0f} rows); one "
                   f"compiled RHS {b['rhs_s'] * 1e6:.2f} us (over the blow's states)")
         if args.quick:
             continue
-        r = reference(effects)
+        r = reference(effects, coupling)
         dt = abs(m["strike_s"] - r["strike_s"]) * 1e3
         dv = abs(m["strike_speed_m_s"] / r["strike_speed_m_s"] - 1) * 100
         gain = r["wall_best_s"] / m["wall_best_s"]

@@ -253,3 +253,84 @@ def test_agrees_with_tight_bdf(forte: profiles.Profile, effects: tuple[str, ...]
                         integrator=ScipyIntegrator("BDF", rtol=1e-8, max_step=1e-3))
     ref = model.simulate(forte, chunk=0.6)
     _check_agree(res, ref)
+
+
+# -- the one-way coupled axial shank coordinate (hammer_shank_axial.coupling) ----------------
+
+def _one_way(**kw: object) -> ActionModel:
+    par = Parameters.default().set("hammer_shank_axial.coupling", "one_way")
+    return ActionModel(par, effects=FULL, **kw)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("w2, beta", [(1.09e9, 1.14e-5), (1.09e9, 0.0), (1.09e9, 2e-4),
+                                      (1.09e9, 2.0 / math.sqrt(1.09e9)), (4e6, 1e-3)],
+                         ids=["under", "undamped", "over", "critical", "slow"])
+def test_axial_advance_is_exact_under_linear_forcing(w2: float, beta: float) -> None:
+    from scipy.integrate import solve_ivp
+
+    from rig.model.integrators_stiff import axial_advance
+
+    # u'' + beta w2 u' + w2 u = w2 s(t), s linear over each step, several steps chained
+    knots = np.array([0.0, 3e-5, 2.3e-4, 2.4e-4, 9e-4])
+    s = np.array([0.0, -4e-5, 1e-5, 2e-5, -3e-6])
+    u, v = 2e-6, -0.1
+    y = np.array([u, v])
+    for i in range(knots.size - 1):
+        h = knots[i + 1] - knots[i]
+        u, v = axial_advance(h, u, v, s[i], s[i + 1], w2, beta)
+
+        def f(t: float, x: np.ndarray, i: int = i, h: float = h) -> list[float]:
+            si = s[i] + (s[i + 1] - s[i]) * t / h
+            return [x[1], w2 * (si - x[0] - beta * x[1])]
+
+        y = solve_ivp(f, (0.0, h), y, method="DOP853", rtol=1e-12, atol=1e-16).y[:, -1]
+        assert u == pytest.approx(y[0], abs=1e-11)
+        assert v == pytest.approx(y[1], abs=1e-11 * math.sqrt(w2))
+
+
+def test_one_way_axial_mode_is_the_coupled_models_axial_mode(full_model: ActionModel) -> None:
+    # the oscillator's frequency: the coupled model's 5.2 kHz eigenvalue (its Jacobian at
+    # rest), which the one-way model keeps with the hammer and the bending free to react
+    one_way = _one_way()
+    assert _active(one_way.packed.arrays, k.NY).tolist() == [
+        k.QK, k.QYK, k.QW, k.QJ, k.QR, k.QH, k.QV1, k.QV2, k.QZ]
+    arrays = full_model.packed.arrays
+    y = full_model.rest_state()
+    ws = full_model.workspace()
+    f = np.zeros(k.NY)
+    k.rhs(0.0, y, 0.0, arrays, ws, f)
+    J = np.zeros((k.NY, k.NY))
+    for j in range(k.NY):
+        yp = y.copy()
+        d = 1e-7 * max(abs(y[j]), 1e-3 if j < k.NQ else 0.1)
+        yp[j] += d
+        fp = np.zeros(k.NY)
+        k.rhs(0.0, yp, 0.0, arrays, ws, fp)
+        J[:, j] = (fp - f) / d
+    lam = np.linalg.eigvals(J)
+    axial = lam[np.argmax(np.abs(lam.imag))]
+    assert math.sqrt(one_way.packed.arrays.sp[k.S_AXW2]) == pytest.approx(abs(axial), rel=0.01)
+
+
+def test_one_way_axial_exact_steps_agree_with_dormand_prince(forte: profiles.Profile) -> None:
+    # the same one-way equations: the Rosenbrock advances u1 exactly between its steps
+    # (the axial force linear over each step), DormandPrince steps the stiff oscillator like
+    # any other coordinate; both tight, through the strike and the string's release
+    runs = []
+    for integ in (Rosenbrock(rtol=1e-9), DormandPrince(rtol=1e-10, max_step=1e-3)):
+        model = _one_way(integrator=integ)
+        model.atol = model.atol * 1e-3
+        runs.append(model.simulate(forte, 0.068))
+    a, b = runs
+    assert a.success and b.success
+    strain_a, strain_b = a.channels["shank_strain"], b.channels["shank_strain"]
+    # measured 1.9e-8: the axial force held linear over each step
+    assert np.abs(strain_a - strain_b).max() < 1e-7
+    # the axial strain is there: u1 alone is tens of microstrain while the jack pushes
+    assert np.abs(strain_a).max() > 1e-4
+
+
+def test_axial_coupling_parameter_is_checked() -> None:
+    par = Parameters.default().set("hammer_shank_axial.coupling", "none")
+    with pytest.raises(ValueError, match="hammer_shank_axial.coupling"):
+        ActionModel(par, effects=FULL)

@@ -25,6 +25,9 @@ BODY_FRAME = {
 HEAD_ORIGIN_IN_HAMMER = (-0.1275, 0.0)
 JOINTS = ("key", "whippen", "jack", "repetition", "hammer")
 N_GAUSS = 4  # exact for the beam's linear mass matrix (integrands up to xi^6)
+# hammer_shank_axial.coupling: the shank's axial coordinate in the full equations, or driven
+# one way by the axial force of an axially rigid mechanism (docs/model.md)
+AXIAL_COUPLINGS = ("two_way", "one_way")
 
 
 @dataclass(frozen=True)
@@ -200,6 +203,18 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     omega1 = shank_first_mode(arrays, n_frames, params) if flexible_shank else 0.0
     if flexible_shank and omega1 > 0:
         sp[k.S_BETA] = 2.0 * t["hammer_shank_damping"]["ratio"] / omega1
+    if flexible_shank:
+        coupling = t["hammer_shank_axial"]["coupling"]
+        if coupling not in AXIAL_COUPLINGS:
+            raise InputError(f"hammer_shank_axial.coupling: expected one of "
+                             f"{', '.join(AXIAL_COUPLINGS)}, got {coupling!r}")
+        sp[k.S_AXIAL_ONEWAY] = 1.0 if coupling == "one_way" else 0.0
+        # the axial mode's effective mass: u1's with the hammer and the bending free to
+        # react (the Schur complement of the hammer block), i.e. the 5.2 kHz mode
+        mh, _kh = _hammer_block(arrays, n_frames, params)
+        rest = [0, 2, 3]
+        m_axial = mh[1, 1] - mh[1, rest] @ np.linalg.solve(mh[np.ix_(rest, rest)], mh[rest, 1])
+        sp[k.S_AXW2] = sp[k.S_EA] * sp[k.S_L] / m_axial
     return Packed(arrays, tuple(ids), tuple(names), n_frames, omega1)
 
 
@@ -209,6 +224,15 @@ def shank_first_mode(arrays: k.Model, n_frames: int, params: Parameters) -> floa
     Linearization of the hammer block (theta_h, u1, v1, v2) about the rest angle:
     mass matrix from the kernel, stiffness from the beam's strain energy.
     """
+    mh, kh = _hammer_block(arrays, n_frames, params)
+    lam = np.linalg.eigvals(np.linalg.solve(mh, kh)).real
+    lam = np.sort(lam[lam > 1e-6])
+    return float(np.sqrt(lam[0])) if lam.size else 0.0
+
+
+def _hammer_block(arrays: k.Model, n_frames: int,
+                  params: Parameters) -> tuple[np.ndarray, np.ndarray]:
+    """Mass and stiffness matrices of the hammer block (theta_h, u1, v1, v2) at rest."""
     sp = arrays.sp
     ws = k.make_workspace(n_frames, arrays.cf.shape[0])
     y = np.zeros(k.NY)
@@ -233,6 +257,4 @@ def shank_first_mode(arrays: k.Model, n_frames: int, params: Parameters) -> floa
     kh = np.zeros((4, 4))
     kh[1, 1] = ea * ln
     kh[2:, 2:] = ej * np.array([[4 * ln, 6 * ln**2], [6 * ln**2, 12 * ln**3]])
-    lam = np.linalg.eigvals(np.linalg.solve(mh, kh)).real
-    lam = np.sort(lam[lam > 1e-6])
-    return float(np.sqrt(lam[0])) if lam.size else 0.0
+    return mh, kh

@@ -207,6 +207,37 @@ def _spectral_radius(JA, JB, na, v, w):
     return math.exp(logsum / cnt)
 
 
+@njit(cache=True)
+def axial_advance(h, u0, v0, s0, s1, w2, beta):
+    """Exact step of the one-way coupled axial coordinate over h.
+
+    u'' + beta w2 u' + w2 u = w2 s(t), with the quasi-static strain s linear from s0 to s1
+    over the step (first-order hold): the particular solution s(t) - beta s' plus the free
+    oscillation (under-, critically or over-damped) of the difference. Returns u, u' at h.
+    """
+    c = beta * w2
+    b = (s1 - s0) / h
+    e0 = u0 - (s0 - c * b / w2)
+    e0d = v0 - b
+    sig = 0.5 * c
+    d2 = w2 - sig * sig
+    if d2 > 0.0:
+        wd = math.sqrt(d2)
+        cw = math.cos(wd * h)
+        sw = math.sin(wd * h) / wd
+    elif d2 < 0.0:
+        wd = math.sqrt(-d2)
+        cw = math.cosh(wd * h)
+        sw = math.sinh(wd * h) / wd
+    else:
+        cw = 1.0
+        sw = h
+    ex = math.exp(-sig * h)
+    u = s1 - c * b / w2 + ex * ((cw + sig * sw) * e0 + sw * e0d)
+    v = b + ex * (-w2 * sw * e0 + (cw - sig * sw) * e0d)
+    return u, v
+
+
 # state slots kept between calls
 ST_AGE, ST_MODE, ST_HEXP, ST_STIFF, ST_SLOW = range(5)
 
@@ -220,7 +251,10 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     Rosenbrock-W (ROS34PW2) steps; with ``switching``, Dormand-Prince 5(4) steps
     wherever those are cheaper (accuracy, not stability, limits the step).
     JA, JB, gk hold the Jacobian on entry when state[ST_AGE] > 0 (it is then
-    reused) and the latest one on exit.
+    reused) and the latest one on exit. A one-way coupled axial shank coordinate
+    (kernel.S_AXIAL_ONEWAY) is not part of the steps: it is advanced exactly over each
+    accepted step (axial_advance) under the quasi-static strain at the step's ends, and
+    left out of the error norm.
     """
     a, c, m, e, alpha, gsum = ROS_A, ROS_C, ROS_M, ROS_E, ROS_ALPHA, ROS_GSUM
     gam = ROS_GAMMA
@@ -245,6 +279,18 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     ftmp = np.empty(n)
     ytmp = np.empty(n)
     hint = np.zeros(1, dtype=np.int64)
+    sp = model.sp
+    axial = sp[k.S_FLEX] > 0.5 and sp[k.S_AXIAL_ONEWAY] > 0.5
+    iu = k.QU1
+    iv = nq + k.QU1
+    w2 = sp[k.S_AXW2]
+    beta = sp[k.S_BETA]
+    ew = np.ones(n)
+    n_err = n
+    if axial:
+        ew[iu] = 0.0
+        ew[iv] = 0.0
+        n_err = n - 2
     t = t0
     h = min(h0, hmax, t1 - t0)
     hmin = 1e-13
@@ -346,8 +392,8 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                         ea += e[st] * U[st, i]
                     ynew[i] = acc
                     sc = atol[i] + rtol * max(abs(y[i]), abs(acc))
-                    err += (ea / sc) ** 2
-                    if abs(ea / sc) > emax:
+                    err += ew[i] * (ea / sc) ** 2
+                    if ew[i] * abs(ea / sc) > emax:
                         emax = abs(ea / sc)
                         imax = i
         else:
@@ -358,6 +404,9 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                     for q in range(st):
                         acc += h * DP_A[st, q] * (f0[i] if q == 0 else K[q, i])
                     yt[i] = acc
+                if axial:  # the stiff axial oscillator is not stepped (axial_advance is)
+                    yt[iu] = y[iu]
+                    yt[iv] = y[iv]
                 ts = t + DP_C[st] * h
                 k.rhs(ts, yt, force_at(ts, force_t, force_f, hint), model, ws, fs)
                 for i in range(n):
@@ -367,6 +416,9 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                 for q in range(1, 6):
                     acc += DP_B[q] * K[q, i]
                 ynew[i] = y[i] + h * acc
+            if axial:
+                ynew[iu] = y[iu]
+                ynew[iv] = y[iv]
             tn = t + h
             k.rhs(tn, ynew, force_at(tn, force_t, force_f, hint), model, ws, f1)
             n_rhs += 6
@@ -379,19 +431,19 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
                     ea += DP_E[q] * K[q, i]
                 ea *= h
                 sc = atol[i] + rtol * max(abs(y[i]), abs(ynew[i]))
-                err += (ea / sc) ** 2
-                if abs(ea / sc) > emax:
+                err += ew[i] * (ea / sc) ** 2
+                if ew[i] * abs(ea / sc) > emax:
                     emax = abs(ea / sc)
                     imax = i
                 if not math.isfinite(ynew[i]):
                     finite = False
                 # Hairer's stiffness test: last two stages share t + h
-                stnum += (f1[i] - K[5, i]) ** 2
-                stden += (ynew[i] - yt[i]) ** 2
+                stnum += ew[i] * (f1[i] - K[5, i]) ** 2
+                stden += ew[i] * (ynew[i] - yt[i]) ** 2
             if stden > 0.0:
                 hlamb = h * math.sqrt(stnum / stden)
         if finite:
-            err = math.sqrt(err / n)
+            err = math.sqrt(err / n_err)
             if not math.isfinite(err):
                 finite = False
         nt = steps + rejected
@@ -416,6 +468,15 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
             if implicit:
                 k.rhs(tn, ynew, fk1, model, ws, f1)
                 n_rhs += 1
+            if axial:
+                # the quasi-static strain at both ends from u1'' = w2 (s - u1 - beta u1')
+                s0 = f0[iv] / w2 + y[iu] + beta * y[iv]
+                s1 = f1[iv] / w2 + ynew[iu] + beta * ynew[iv]
+                un, vn = axial_advance(tn - t, y[iu], y[iv], s0, s1, w2, beta)
+                ynew[iu] = un
+                ynew[iv] = vn
+                f1[iu] = vn
+                f1[iv] = w2 * (s1 - un - beta * vn)
             while j < n_out and out_t[j] <= tn:
                 _hermite(t, tn - t, y, f0, ynew, f1, out_t[j], out_y, j)
                 j += 1
@@ -548,4 +609,6 @@ def _active(model: k.Model, n_state: int) -> np.ndarray:
     active[k.QYK] = sp[k.S_LIFTOFF] > 0.5
     active[k.QU1 : k.QV2 + 1] = sp[k.S_FLEX] > 0.5
     active[k.QZ] = sp[k.S_BRISTLE] > 0.5
+    if sp[k.S_AXIAL_ONEWAY] > 0.5:
+        active[k.QU1] = False  # advanced exactly by ros_run, not by the steps
     return np.flatnonzero(active).astype(np.int64)

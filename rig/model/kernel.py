@@ -65,7 +65,11 @@ S_JACK_T, S_REP_K, S_REP_TH0 = 22, 23, 24
 S_LIFTOFF, S_FLEX = 25, 26
 S_BRISTLE = 27  # 1 when one contact's friction is the bristle law (z_b moves)
 S_ZTAU, S_ZOPEN = 28, 29  # bristle rate relaxation time; bristle recovery when open (s)
-N_SP = 30
+# 1 when the shank's axial coordinate is one-way coupled (see accelerations): the mechanism
+# sees an axially rigid shank, u1 is driven by the axial force it transmits; S_AXW2 is the
+# axial mode's EA L / M_u1u1 (1/s^2)
+S_AXIAL_ONEWAY, S_AXW2 = 30, 31
+N_SP = 32
 
 # joint friction rows (jf): key, whippen, jack, repetition, hammer, key slider on its
 # balance-rail pin (lift-off; force in N, speed in m/s) ; cols E, F1, F2, wt
@@ -109,10 +113,12 @@ def _shank_point(xi, q, qd, sp):
     s(xi) that bending causes. Returns position (px, py), velocity relative to the
     hammer (pdx, pdy), ds/dv1, ds/dv2 and the velocity-product term of s'' (quad).
     """
-    u1 = q[QU1]
+    # a one-way coupled axial coordinate does not move the mechanism's shank
+    rigid_axial = sp[S_AXIAL_ONEWAY] > 0.5
+    u1 = 0.0 if rigid_axial else q[QU1]
     v1 = q[QV1]
     v2 = q[QV2]
-    du1 = qd[QU1]
+    du1 = 0.0 if rigid_axial else qd[QU1]
     dv1 = qd[QV1]
     dv2 = qd[QV2]
     dx, dy, nx, ny = sp[S_DX], sp[S_DY], sp[S_NX], sp[S_NY]
@@ -664,7 +670,8 @@ def accelerations(t, y, f_key, model, ws, full):
         u1 = q[QU1] + beta * qd[QU1]
         v1 = q[QV1] + beta * qd[QV1]
         v2 = q[QV2] + beta * qd[QV2]
-        Q[QU1] -= ea * ln * u1
+        if sp[S_AXIAL_ONEWAY] < 0.5:
+            Q[QU1] -= ea * ln * u1
         Q[QV1] -= ej * (4.0 * ln * v1 + 6.0 * ln * ln * v2)
         Q[QV2] -= ej * (6.0 * ln * ln * v1 + 12.0 * ln * ln * ln * v2)
     # contacts
@@ -690,6 +697,20 @@ def accelerations(t, y, f_key, model, ws, full):
         for c in range(QU1, QV2 + 1):
             M[c, c] = 1.0
             Q[c] = 0.0
+    oneway = sp[S_FLEX] > 0.5 and sp[S_AXIAL_ONEWAY] > 0.5
+    mu_h = mu_v1 = mu_v2 = q_u = 0.0
+    if oneway:
+        # the mechanism moves as if the shank were axially rigid: take u1's row and column
+        # out of the hammer block, keeping the row for the axial force it transmits
+        mu_h = M[QU1, QH]
+        mu_v1 = M[QU1, QV1]
+        mu_v2 = M[QU1, QV2]
+        q_u = Q[QU1]
+        for c in (QH, QV1, QV2):
+            M[QU1, c] = 0.0
+            M[c, QU1] = 0.0
+        M[QU1, QU1] = 1.0
+        Q[QU1] = 0.0
     # the bristle deflection: its rate relaxes to the law's within S_ZTAU under load, and
     # as slowly as the bristles recover while the contact is open (which keeps the stiff
     # -1/S_ZTAU out of the Jacobian there, so explicit steps stay possible); frozen
@@ -701,6 +722,13 @@ def accelerations(t, y, f_key, model, ws, full):
         Q[QZ] = 0.0
     for blk in range(4):
         _solve(M, Q, qdd, BLOCKS[blk][0], BLOCKS[blk][1])
+    if oneway:
+        # u1's own equation, M_uu u1'' + EA L (u1 + beta u1') = Q_u - sum_j M_uj qdd_j, with
+        # the rigid mechanism's accelerations: a linear oscillator driven by the quasi-static
+        # axial strain s = (Q_u - sum_j M_uj qdd_j) / (EA L)
+        s_qs = (q_u - mu_h * qdd[QH] - mu_v1 * qdd[QV1] - mu_v2 * qdd[QV2]) / (
+            sp[S_EA] * sp[S_L])
+        qdd[QU1] = sp[S_AXW2] * (s_qs - q[QU1] - sp[S_BETA] * qd[QU1])
     return qdd
 
 
