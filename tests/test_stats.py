@@ -78,6 +78,18 @@ def test_values_print_and_round_to_their_uncertainty() -> None:
     assert stats.round_to(19387.2, 3456.0) == 19400.0
 
 
+def test_values_in_sentences_read_plainly() -> None:
+    assert stats.short(1000.0) == "1000"              # not 1e+03
+    assert stats.short(968.4) == "968"
+    assert stats.short(45.23) == "45.2"
+    assert stats.short(0.002791) == "0.00279"
+    assert stats.short(2.75e-4) == "0.000275"
+    assert stats.short(3e-13) == "0"                  # a bound reached, not 3e-13
+    assert stats.short(-0.5) == "-0.500"
+    assert stats.short(5.376e9) == "5.38e+09"
+    assert stats.short(math.nan) == "not determined"
+
+
 def _cand(name: str, resid: np.ndarray, significant: bool = True) -> dg.Candidate:
     base = 1.0
     rem = 1 - float(np.mean(resid ** 2)) / base

@@ -788,15 +788,16 @@ def _restarts(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Ef
         return minima, []
     gap = _noise_free_gap(minima[0][1], minima[k][1], base, instances, targets, train)
     if gap is not None and not gap > 0:
+        at = ", ".join(f"{n} {stats.short(minima[k][1][n])}" for n in labels)
         return minima, [f"refitted from other starts: a minimum with less training error "
-                        f"({', '.join(f'{n} {minima[k][1][n]:.3g}' for n in labels)}) owes "
-                        f"it to the input force's noise (extrapolated to a noise-free force "
-                        f"it is not better); the first fit stays"]
+                        f"({at}) owes it to the input force's noise (extrapolated to a "
+                        f"noise-free force it is not better); the first fit stays"]
     old = dict(final.values)
     final.values, final.sigma, final.corr = dict(minima[k][1]), dict(minima[k][2]), corrs[k]
     final.train_cost = minima[k][0]
     minima.insert(0, minima.pop(k))
-    shown = ", ".join(f"{n} {old[n]:.3g} -> {final.values[n]:.3g}" for n in labels)
+    shown = ", ".join(f"{n} {stats.short(old[n])} -> {stats.short(final.values[n])}"
+                      for n in labels)
     ratio = minima[1][0] / minima[0][0]
     less = f"{ratio:.3g} times" if ratio >= 2 else f"{(1 - 1 / ratio) * 100:.2g} %"
     return minima, [f"refitted from other starts: a minimum with {less} less training error "
@@ -1005,7 +1006,8 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
         return [f"valley of {what}: refitted from {len(minima) - 1} other starts, and no "
                 f"value along it beyond the stated uncertainty is as good on the held-out "
                 f"data"]
-    shown = "; ".join(f"{k} {lo:.3g} to {hi:.3g}{(' ' + _unit(final.units.get(k, ''))).rstrip()}"
+    shown = "; ".join(f"{k} {stats.short(lo)} to {stats.short(hi)}"
+                      f"{(' ' + _unit(final.units.get(k, ''))).rstrip()}"
                       for k, (lo, hi) in spans.items())
     minima_text = "a least-squares minimum" if len(kept) == 1 else \
         f"{len(kept)} least-squares minima"

@@ -183,6 +183,20 @@ def round_to(v: float, s: float) -> float:
     return float(round(v, dec))
 
 
+def short(v: float, digits: int = 3) -> str:
+    """``v`` to ``digits`` significant digits for a sentence: plain decimals from 1e-3 to
+    1e5 (1000, not 1e+03), powers of ten outside, and 0 below 1e-12 (a bound at zero
+    reached up to the optimizer's rounding, not 3e-13)."""
+    if not math.isfinite(v):
+        return "not determined"
+    a = abs(v)
+    if a < 1e-12:
+        return "0"
+    if 1e-3 <= a < 1e5:
+        return f"{v:.{max(0, digits - 1 - math.floor(math.log10(a)))}f}"
+    return f"{v:.{digits}g}"
+
+
 def fmt(v: float, s: float, units: str = "") -> str:
     """``v +- s units`` with v rounded to two digits of s; dimensionless shows no unit."""
     u = "" if units in ("", "1") else f" {units}"
