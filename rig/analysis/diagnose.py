@@ -909,38 +909,38 @@ def _valleys(final: Candidate, minima: Sequence[Minimum], base: ActionModel,
     def model_at(vals: Mapping[str, float]) -> ActionModel:
         return ft.rebuild(base, instances(vals), dict(vals), targets, rate)
 
-    def responses(vals: Mapping[str, float], r: np.ndarray) -> np.ndarray | None:
+    def responses(model: ActionModel, r: np.ndarray) -> np.ndarray | None:
         if not noise_test:  # the same draws for every model (one seed)
             return None
-        return ft.input_noise_responses(model_at(vals), test, draws=VALLEY_NOISE_DRAWS, r0=r)
+        return ft.input_noise_responses(model, test, draws=VALLEY_NOISE_DRAWS, r0=r)
 
     try:
-        ref_resp = responses(ref[1], ref[3])
+        ref_resp = responses(model_at(ref[1]), ref[3])
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         ref_resp = None
 
-    def plausible(vals: Mapping[str, float], r: np.ndarray) -> bool:
+    def plausible(model: ActionModel, r: np.ndarray) -> bool:
         """Not significantly worse than the best on the held-out data: unless both the HAC
         test and, where the input force's noise can be drawn, the test with it drawn
         (``stats.input_noise_mc_test``, run only when the HAC test says worse) say so."""
         if r is ref[3] or stats.improvement_test(r, ref[3], segs)[1] >= alpha:
             return True
-        resp = responses(vals, r) if ref_resp is not None else None
+        resp = responses(model, r) if ref_resp is not None else None
         if resp is None or ref_resp is None:
             return False
         return stats.input_noise_mc_test(r, ref[3], resp, ref_resp, out_sigma)[1] >= alpha
 
     def plausible_at(vals: dict[str, float]) -> dict[str, float] | None:
         try:
-            return vals if plausible(vals, test.residuals(test.simulate(model_at(vals)))) \
-                else None
+            model = model_at(vals)
+            return vals if plausible(model, test.residuals(test.simulate(model))) else None
         except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
             return None
 
     kept = []
     for m in minima:
         try:
-            if m is minima[0] or plausible(m[1], m[3]):
+            if m is minima[0] or plausible(model_at(m[1]), m[3]):
                 kept.append(m)
         except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
             continue

@@ -200,31 +200,30 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
 
     n_frames = k.N_RIGID_FRAMES + len(sections) + 1  # + scratch frame for beam particles
     arrays = k.Model(sp, np.array(sections, dtype=float), cf, cl, jf, me, beam_pts)
-    omega1 = shank_first_mode(arrays, n_frames, params) if flexible_shank else 0.0
-    if flexible_shank and omega1 > 0:
-        sp[k.S_BETA] = 2.0 * t["hammer_shank_damping"]["ratio"] / omega1
+    omega1 = 0.0
     if flexible_shank:
         coupling = t["hammer_shank_axial"]["coupling"]
         if coupling not in AXIAL_COUPLINGS:
             raise InputError(f"hammer_shank_axial.coupling: expected one of "
                              f"{', '.join(AXIAL_COUPLINGS)}, got {coupling!r}")
-        sp[k.S_AXIAL_ONEWAY] = 1.0 if coupling == "one_way" else 0.0
-        # the axial mode's effective mass: u1's with the hammer and the bending free to
-        # react (the Schur complement of the hammer block), i.e. the 5.2 kHz mode
-        mh, _kh = _hammer_block(arrays, n_frames, params)
-        rest = [0, 2, 3]
-        m_axial = mh[1, 1] - mh[1, rest] @ np.linalg.solve(mh[np.ix_(rest, rest)], mh[rest, 1])
-        sp[k.S_AXW2] = sp[k.S_EA] * sp[k.S_L] / m_axial
+        mh, kh = _hammer_block(arrays, n_frames, params)
+        omega1 = shank_first_mode(mh, kh)
+        if omega1 > 0:
+            sp[k.S_BETA] = 2.0 * t["hammer_shank_damping"]["ratio"] / omega1
+        if coupling == "one_way":
+            sp[k.S_AXIAL_ONEWAY] = 1.0
+            # the axial mode's effective mass: u1's with the hammer and the bending free to
+            # react (the Schur complement of the hammer block), i.e. the 5.2 kHz mode
+            rest = [0, 2, 3]
+            m_axial = mh[1, 1] - mh[1, rest] @ np.linalg.solve(mh[np.ix_(rest, rest)],
+                                                               mh[rest, 1])
+            sp[k.S_AXW2] = sp[k.S_EA] * sp[k.S_L] / m_axial
     return Packed(arrays, tuple(ids), tuple(names), n_frames, omega1)
 
 
-def shank_first_mode(arrays: k.Model, n_frames: int, params: Parameters) -> float:
-    """First bending frequency (rad/s) of the hammer pinned at its flange, in free flight.
-
-    Linearization of the hammer block (theta_h, u1, v1, v2) about the rest angle:
-    mass matrix from the kernel, stiffness from the beam's strain energy.
-    """
-    mh, kh = _hammer_block(arrays, n_frames, params)
+def shank_first_mode(mh: np.ndarray, kh: np.ndarray) -> float:
+    """First bending frequency (rad/s) of the hammer pinned at its flange, in free flight,
+    from the hammer block's mass and stiffness matrices (``_hammer_block``)."""
     lam = np.linalg.eigvals(np.linalg.solve(mh, kh)).real
     lam = np.sort(lam[lam > 1e-6])
     return float(np.sqrt(lam[0])) if lam.size else 0.0
@@ -232,7 +231,9 @@ def shank_first_mode(arrays: k.Model, n_frames: int, params: Parameters) -> floa
 
 def _hammer_block(arrays: k.Model, n_frames: int,
                   params: Parameters) -> tuple[np.ndarray, np.ndarray]:
-    """Mass and stiffness matrices of the hammer block (theta_h, u1, v1, v2) at rest."""
+    """Mass and stiffness matrices of the hammer block (theta_h, u1, v1, v2) at rest:
+    the linearization about the rest angle, mass from the kernel, stiffness from the beam's
+    strain energy."""
     sp = arrays.sp
     ws = k.make_workspace(n_frames, arrays.cf.shape[0])
     y = np.zeros(k.NY)
