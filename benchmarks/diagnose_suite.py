@@ -112,7 +112,7 @@ def main() -> None:
             print(f"  seed {seed}: chose {names or 'nothing'} in {times[-1]:.1f} s",
                   flush=True)
             for note in diag.notes:
-                if note.startswith(("valley", "refitted")):
+                if note.startswith(("valley", "refitted", "round ")) or " dropped: " in note:
                     print(f"    {note}", flush=True)
         k = args.seeds
         cover = f"{covered}/{checked}" if checked else "-"
