@@ -287,6 +287,32 @@ def test_input_noise_mc_test_holds_its_level_when_one_model_filters_the_noise() 
     assert found >= 80, found
 
 
+def test_a_round_picks_the_first_needed_newcomer_or_first_refits_the_set(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``diagnose._pick``: a refused newcomer whose set fits better than the set so far
+    makes the round start again from it (while re-fits are left); otherwise the round goes
+    on to the next candidate, and the first needed one is chosen."""
+    state = dg.State([], np.ones(4), {}, 1.0)
+    better_set = dg.Candidate("s", "", {}, {}, {}, 0.0, {}, 0.0, True, train_cost=0.5,
+                              test_resid=np.full(4, 0.5))
+
+    def fake(c, *a, **k):  # the first refused (the set fits better), the second needed
+        if c.name == "a":
+            c.significant = False
+            return better_set
+        return None
+
+    monkeypatch.setattr(dg, "_without_newcomer", fake)
+    ranked = [dg.Candidate(n, "", {}, {}, {}, 0.5, {}, 10.0, True) for n in "ab"]
+    best, better = dg._pick(ranked, None, None, {}, None, None, state, 0.01, True)
+    assert best is None and better is better_set
+    ranked = [dg.Candidate(n, "", {}, {}, {}, 0.5, {}, 10.0, True) for n in "ab"]
+    best, better = dg._pick(ranked, None, None, {}, None, None, state, 0.01, False)
+    assert best is ranked[1] and better is None
+    ranked[1].significant = False
+    assert dg._pick(ranked, None, None, {}, None, None, state, 0.01, False) == (None, None)
+
+
 def test_default_window_ends_at_the_keys_release() -> None:
     from rig.analysis import measurement as ms
 

@@ -475,6 +475,27 @@ def _without_newcomer(c: Candidate, current: Candidate | None, base: ActionModel
     return got[1]
 
 
+def _pick(out: Sequence[Candidate], current: Candidate | None, base: ActionModel,
+          by_name: Mapping[str, type[Effect]], train: ft.Data, test: ft.Data, state: State,
+          level: float, can_readopt: bool) -> tuple[Candidate | None, Candidate | None]:
+    """A round's choice, in rank order: (the first significant candidate whose newcomer
+    is needed, None), or (None, the set so far at better values) when a candidate refused
+    before it revealed them (lower training and held-out errors than the set so far) and
+    ``can_readopt``; (None, None) when nothing qualifies."""
+    for c in out:
+        if not c.significant:
+            continue
+        alt = _without_newcomer(c, current, base, by_name, train, test, state, level)
+        if alt is None:
+            return c, None
+        if can_readopt and alt.test_resid is not None \
+                and alt.train_cost < state.train_cost * (1 - SAME_MINIMUM) \
+                and float(np.mean(alt.test_resid ** 2)) < float(np.mean(
+                    state.test_resid ** 2)):
+            return None, alt
+    return None, None
+
+
 def _unneeded(steps: Sequence[Candidate], base: ActionModel,
               by_name: Mapping[str, type[Effect]], train: ft.Data, test: ft.Data,
               alpha: float, noise: bool) -> tuple[str, float, list[Candidate]] | None:
@@ -653,23 +674,10 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                 judge(c, level, min_gain, min_noise_gain, z_off)
             out = rank(out, implies, min_gain)
             # an effect implying another is named only if it beats it (rank put it after)
-            best = better = None
-            for c in out:
-                if not c.significant:
-                    continue
-                alt = _without_newcomer(c, chosen[-1] if chosen else None, base, by_name,
-                                        train, test, state, level)
-                if alt is None:
-                    best = c
-                    break
-                if alt.test_resid is not None \
-                        and alt.train_cost < state.train_cost * (1 - SAME_MINIMUM) \
-                        and float(np.mean(alt.test_resid ** 2)) < float(np.mean(
-                            state.test_resid ** 2)):
-                    better = alt
-                    break
+            best, better = _pick(out, chosen[-1] if chosen else None, base, by_name, train,
+                                 test, state, level, readopted < MAX_READOPT)
             out = rank(out, implies, min_gain)  # one the newcomer test refused goes down
-            if better is not None and readopted < MAX_READOPT:
+            if better is not None:
                 # the set so far fits better at the values a candidate's joint refit found
                 # for it (the candidate itself adds nothing): take them and fit the round
                 # again, so that no candidate is credited with the set's own misfit
