@@ -408,34 +408,37 @@ def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
 MAX_READOPT = 2  # rounds fitted again from a better fit of the set so far (per diagnose)
 
 
+def _set_model(base: ActionModel, by_name: Mapping[str, type[Effect]], names: Sequence[str],
+               values: Mapping[str, float], rate: float) -> ActionModel:
+    """The base model with the effects ``names`` at ``values`` (keyed ``effect.param``)."""
+    add = _instances([by_name[n] for n in names], values)
+    return ft.rebuild(base, add, dict(values), [ft.target(base, k, add) for k in values], rate)
+
+
 def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
              by_name: Mapping[str, type[Effect]], train: ft.Data, test: ft.Data,
-             noise: bool) -> tuple[float, Candidate] | None:
-    """The set ``c`` without the effect ``name``, the others at ``c``'s values: the
-    one-sided held-out p that it is worse than ``c`` (``stats.noise_model_test`` with its
-    own input-noise draws when ``noise``, else ``stats.improvement_test``), and the reduced
-    set as a copy of ``template`` (whose step fields it keeps), scored. None when a
-    simulation fails."""
+             noise: bool, level: float) -> tuple[float, Candidate | None] | None:
+    """The set ``c`` (its held-out residual ``c.test_resid`` at its values) without the
+    effect ``name``, the others at ``c``'s values: the one-sided held-out p that it is
+    worse than ``c`` (``stats.noise_model_test`` with its own input-noise draws when
+    ``noise``, else ``stats.improvement_test``), and, when p > ``level``, the reduced set
+    as a copy of ``template`` (whose step fields it keeps), scored. None when a simulation
+    fails."""
+    if c.test_resid is None:
+        return None
     keep = tuple(n for n in (c.effects or (c.name,)) if n != name)
     vals = {k: v for k, v in c.values.items() if not k.startswith(name + ".")}
-    rate = test.measurements[0].rate
     try:
-        add = [cls(**{k[len(cls.name) + 1:]: v for k, v in vals.items()
-                      if k.startswith(cls.name + ".")}) for cls in (by_name[n] for n in keep)]
-        model = ft.rebuild(base, add, vals, [ft.target(base, k, add) for k in vals], rate)
+        model = _set_model(base, by_name, keep, vals, test.measurements[0].rate)
         preds = test.simulate(model)
         resid = test.residuals(preds)
-        ref = c.test_resid
-        if ref is None:
-            add_c = _set_effects(c, by_name)(c.values)
-            ref = test.residuals(test.simulate(ft.rebuild(
-                base, add_c, dict(c.values), [ft.target(base, k, add_c) for k in c.values],
-                rate)))
         resp = ft.input_noise_responses(model, test, r0=resid) if noise else None
         if resp is not None:
-            _, p = stats.noise_model_test(resid, ref, test.noise_vector(), resp)
+            _, p = stats.noise_model_test(resid, c.test_resid, test.noise_vector(), resp)
         else:
-            _, p = stats.improvement_test(resid, ref, test.segments())
+            _, p = stats.improvement_test(resid, c.test_resid, test.segments())
+        if p <= level:
+            return p, None
         ms_ = test.channel_ms(preds)
         train_cost = float(np.mean(train.residuals(train.simulate(model)) ** 2))
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
@@ -466,8 +469,8 @@ def _without_newcomer(c: Candidate, current: Candidate | None, base: ActionModel
     if current is None or len(c.effects) < 2 or c.test_resid is None:
         return None
     got = _without(c, c.name, current, base, by_name, train, test,
-                   state.test_noise_draws is not None)
-    if got is None or got[0] <= level:
+                   state.test_noise_draws is not None, level)
+    if got is None or got[1] is None:
         return None
     c.significant = False
     c.why_not = (f"the effects already chosen, refitted with it, do as well without it on "
@@ -513,12 +516,16 @@ def _unneeded(steps: Sequence[Candidate], base: ActionModel,
     names = final.effects or (final.name,)
     if len(names) < 2 or len(steps) < 2:
         return None
-    cur = replace(final, test_resid=None)  # scored at its final values, on these data
+    try:  # scored at its final values, on these data
+        cur = replace(final, test_resid=test.residuals(test.simulate(_set_model(
+            base, by_name, names, final.values, test.measurements[0].rate))))
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return None
     worst: tuple[str, float, Candidate] | None = None
     for n in names:
         template = steps[-2] if n == final.name else final
-        got = _without(cur, n, template, base, by_name, train, test, noise)
-        if got is not None and got[0] > alpha and (worst is None or got[0] > worst[1]):
+        got = _without(cur, n, template, base, by_name, train, test, noise, alpha)
+        if got is not None and got[1] is not None and (worst is None or got[0] > worst[1]):
             worst = (n, got[0], got[1])
     if worst is None:
         return None
@@ -876,11 +883,13 @@ class _Line:
 def _set_effects(final: Candidate, by_name: Mapping[str, type[Effect]]
                  ) -> Callable[[Mapping[str, float]], list[Effect]]:
     kinds = [by_name[n] for n in final.effects or (final.name,)]
+    return lambda values: _instances(kinds, values)
 
-    def instances(values: Mapping[str, float]) -> list[Effect]:
-        return [cls(**{k[len(cls.name) + 1:]: v for k, v in values.items()
-                       if k.startswith(cls.name + ".")}) for cls in kinds]
-    return instances
+
+def _instances(kinds: Sequence[type[Effect]], values: Mapping[str, float]) -> list[Effect]:
+    """Instances of ``kinds`` at ``values`` (keyed ``effect.param``)."""
+    return [cls(**{k[len(cls.name) + 1:]: v for k, v in values.items()
+                   if k.startswith(cls.name + ".")}) for cls in kinds]
 
 
 def _restarts(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
