@@ -46,6 +46,7 @@ def test_improvement_test_holds_its_level_on_noise_alone() -> None:
         miss = 1.0 * np.sin(2 * math.pi * 30 * t)
         _, p = stats.improvement_test(e + miss, e, SEG)
         found += p <= 0.05
+    print(f"found {found}/100")
     assert found >= 80, found
 
 
@@ -284,6 +285,7 @@ def test_input_noise_mc_test_holds_its_level_when_one_model_filters_the_noise() 
                                            out_sigma)[1] <= 0.05
     print(f"false alarms {alarms / reps:.3f} (linear {alarms_linear / reps:.3f}); "
           f"misfit found {found}/100")
+    print(f"found {found}/100")
     assert found >= 80, found
 
 
@@ -331,3 +333,41 @@ def test_default_window_ends_at_the_keys_release() -> None:
     held = ms.Measurement(t, {"time": t, "force": np.interp(t, [0, 0.1, 2.0], [0, 30, 30]),
                               "hammer_angle": hammer}, {"force": "N", "hammer_angle": "rad"})
     assert ms.blow_window(held)[0] == pytest.approx(t[-1])  # never released: whole trial
+
+
+def test_floor_test_holds_its_level_on_a_right_models_residual_and_finds_a_misfit() -> None:
+    # a right model's residual: white output noise plus its (coloured, strongly correlated)
+    # response to the input's noise, drawn 32 times as diagnose draws it; the test of its
+    # mean square against that floor false-alarms at about its level, where a white-noise
+    # floor alone (the noise the channels show) would call nearly every right model short
+    rng = np.random.default_rng(5)
+    t = np.arange(N) / 2000
+    out_sigma = np.full(N, 0.3)
+
+    def response() -> np.ndarray:
+        return 0.5 * coloured(rng)
+
+    alarms = white_alarms = 0
+    reps = 400
+    for _ in range(reps):
+        r = out_sigma * rng.standard_normal(N) + response()
+        floor = stats.noise_floor_draws(out_sigma, np.array([response() for _ in range(32)]),
+                                        seed=int(rng.integers(1 << 30)))
+        ratio, p = stats.floor_test(r, floor)
+        alarms += p <= 0.05
+        white_alarms += stats.floor_test(r, stats.noise_floor_draws(out_sigma))[1] <= 0.05
+    print(f"floor test: {alarms}/{reps} alarms, white floor {white_alarms}/{reps}")
+    assert 0.01 <= alarms / reps <= 0.09, alarms / reps
+    assert white_alarms / reps >= 0.9, white_alarms / reps
+    found = 0
+    for _ in range(100):  # a 30 Hz misfit of twice the floor's mean square beside the noise
+        r = out_sigma * rng.standard_normal(N) + response() + 0.85 * np.sin(
+            2 * math.pi * 30 * t + rng.uniform(0, 6))
+        floor = stats.noise_floor_draws(out_sigma, np.array([response() for _ in range(32)]))
+        ratio, p = stats.floor_test(r, floor)
+        found += p <= 0.05
+    print(f"found {found}/100")
+    assert found >= 80, found
+    empty = stats.floor_test(np.zeros(0), floor)
+    assert math.isnan(empty[0]) and empty[1] == 1.0
+    assert stats.floor_test(np.ones(4), np.zeros((3, 4)))[1] == 0.0

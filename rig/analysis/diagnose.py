@@ -62,6 +62,7 @@ import numpy as np
 from rig.analysis import compare as cp
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
+from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis.measurement import Measurement
@@ -184,6 +185,8 @@ class Diagnosis:
     chosen: list[Candidate] = field(default_factory=list)  # accepted, in order (joint)
     single: bool = False
     refs: dict[str, str] = field(default_factory=dict)     # user effect name -> file.py:Class
+    remainder: rm.Remainder | None = None  # the final model's held-out residual vs its floor
+    max_effects: int = 3
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
@@ -195,6 +198,7 @@ class Diagnosis:
                 "base_error": dict(self.base_error), "total_removal": self.total_removal(),
                 "split": self.split, "single": self.single, "notes": list(self.notes),
                 "verdict": self.verdict(), "wall_s": self.wall_s,
+                "remainder": self.remainder.as_dict() if self.remainder is not None else None,
                 "base_comparison": self.comparison.as_dict()}
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
@@ -233,6 +237,7 @@ class Diagnosis:
 
     def verdict(self) -> str:
         f = self.final
+        rem = self.remainder
         if f is not None:
             names = self.chosen_names
             head = ("missing effect: " if len(names) == 1 else "missing effects (joint fit): ")
@@ -244,12 +249,36 @@ class Diagnosis:
             gain = self.total_removal()
             how = (f"removes {gain * 100:.1f} % of the held-out error" if gain >= 0
                    else "the held-out error is worse")
-            return f"{head}{' + '.join(names)} ({how}): {vals}"
-        sig = "; ".join(s.text() for s in self.signatures[:3])
+            return f"{head}{' + '.join(names)} ({how}): {vals}" + self._left_text()
+        if rem is not None and not rem.significant:
+            return ("no missing effect can be shown: no candidate removes a significant share "
+                    f"of the held-out error, and the base model's held-out residual is within "
+                    f"its noise floor ({rem.head()}; the floor: the sensors' noise and the "
+                    "model's response to the measured force's noise); longer or more trials "
+                    "could show a smaller effect")
+        where = (rem.where() if rem is not None and rem.places else
+                 "; ".join(s.text() for s in self.signatures[:3]))
+        floor = f" ({rem.head()})" if rem is not None else ""
         return ("no library effect explains the residual: no candidate removes a significant "
-                f"share of the held-out error. Where it is: {sig}. If the physics is missing "
-                "from the library, write it as a user effect (docs/effects.md) and try it with "
+                f"share of the held-out error, and the residual stands above its noise "
+                f"floor{floor}. Where it is: {where}. If the physics is missing from the "
+                "library, write it as a user effect (docs/effects.md) and try it with "
                 "--extra file.py:Class")
+
+    def _left_text(self) -> str:
+        """What the chosen set leaves, against its noise floor (empty when not tested)."""
+        rem = self.remainder
+        if rem is None:
+            return ""
+        if not rem.significant:
+            return f". What it leaves is within the noise floor ({rem.head()})"
+        why = ("only one effect was asked for (single)" if self.single else
+               f"the search stops at {self.max_effects} effects" if len(self.chosen_names)
+               >= self.max_effects else
+               "no further library candidate removes a significant share of it")
+        return (f". What it leaves stands above the noise floor ({rem.head()}) and {why}: "
+                f"{rem.where()}. If that physics is missing from the library, write it as a "
+                "user effect (docs/effects.md) and try it with --extra file.py:Class")
 
     def correlation_lines(self) -> list[str]:
         f = self.final
@@ -735,6 +764,15 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
         notes += _backward(chosen, by_name, ctx, base_test, alpha)
+    rate = measurements[0].rate
+    if chosen:
+        names = list(chosen[-1].effects or (chosen[-1].name,))
+        left = rm.remainder(_set_model(base, by_name, names, chosen[-1].values, rate), test,
+                            measurements, of=" + ".join(names), alpha=alpha, align_s=align_s,
+                            channels=channels)
+    else:
+        left = rm.remainder(base, test, measurements, of="base model", alpha=alpha,
+                            align_s=align_s, channels=channels)
     for c in first:
         c.test_resid = None
     for c in chosen:
@@ -746,7 +784,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         notes.append(f"the base model's simulation failed: {comp.models[0].result.message}")
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
-                     single)
+                     single, remainder=left, max_effects=1 if single else max_effects)
 
 
 def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],

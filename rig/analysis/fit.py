@@ -279,6 +279,10 @@ class Data:
         return [int(m.sum()) for i, m in enumerate(self.masks) if m.any()
                 for _ in self.channels[i]]
 
+    def segment_channels(self) -> list[str]:
+        """The channel of each of ``segments``'s parts, in order."""
+        return [c for i, m in enumerate(self.masks) if m.any() for c in self.channels[i]]
+
     def channel_ms(self, preds: list[dict[str, np.ndarray]]) -> dict[str, tuple[float, float]]:
         """Per channel over the masked samples (aligned): (mean square / range^2,
         mean square / noise^2)."""

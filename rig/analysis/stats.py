@@ -146,6 +146,49 @@ def input_noise_mc_test(r0: np.ndarray, r1: np.ndarray, responses0: np.ndarray,
     return z, 0.5 * math.erfc(z / math.sqrt(2))
 
 
+FLOOR_DRAWS = 64  # draws of white output noise alone (noise_floor_draws)
+
+
+def noise_floor_draws(out_sigma: np.ndarray, input_responses: np.ndarray | None = None,
+                      *, seed: int = 0) -> np.ndarray:
+    """Draws of what a residual holds when the model is right: white output noise of level
+    ``out_sigma`` per sample, plus (when given) the model's response to the input force's
+    noise, one row of ``input_responses`` per draw (``FLOOR_DRAWS`` draws without them).
+    A (draws, n) array."""
+    sig = np.asarray(out_sigma, float)
+    resp = None if input_responses is None or not len(input_responses) else \
+        np.asarray(input_responses, float)
+    draws = len(resp) if resp is not None else FLOOR_DRAWS
+    out = sig[None, :] * np.random.default_rng(seed).standard_normal((draws, sig.size))
+    return out + resp if resp is not None else out
+
+
+def floor_test(r: np.ndarray, floor: np.ndarray) -> tuple[float, float]:
+    """One-sided test that residuals ``r`` hold more than noise: (ratio, p), ``ratio`` the
+    mean square of ``r`` over the noise floor's (the mean over the rows of ``floor``, e.g.
+    ``noise_floor_draws``), ``p`` the chance that noise alone reaches it.
+
+    Under the null ``r`` is Gaussian noise, so its mean square is a quadratic form: a
+    weighted sum of chi-squares, taken as a scaled chi-square with the draws' mean and
+    variance (Satterthwaite 1946; the correlated input-noise response makes it far wider
+    than white noise's, and skewed). (inf, 0) for a non-empty residual over a zero floor;
+    (nan, 1) for an empty one."""
+    from scipy.stats import chi2
+
+    r = np.asarray(r, float)
+    if r.size == 0:
+        return math.nan, 1.0
+    t = float(np.mean(r ** 2))
+    m_k = np.mean(np.asarray(floor, float) ** 2, axis=1)
+    m, v = float(np.mean(m_k)), float(np.var(m_k, ddof=1)) if len(m_k) > 1 else 0.0
+    if not m > 0:
+        return (math.inf, 0.0) if t > 0 else (math.nan, 1.0)
+    if not v > 0:
+        return t / m, (0.0 if t > m else 1.0)
+    g, h = v / (2.0 * m), 2.0 * m * m / v
+    return t / m, float(chi2.sf(t / g, h))
+
+
 def mean_test(d: np.ndarray, segments: Sequence[int], noise: np.ndarray | None = None
               ) -> tuple[float, float]:
     """One-sided test that the mean of ``d`` is > 0 with a HAC variance of the mean of
