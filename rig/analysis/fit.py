@@ -461,12 +461,20 @@ def input_noise_sigma(meas: Measurement) -> float:
 
 
 def input_noise_responses(model: ActionModel, data: Data, *, draws: int = INPUT_NOISE_DRAWS,
-                          seed: int = 0, r0: np.ndarray | None = None) -> np.ndarray | None:
+                          seed: int = 0, r0: np.ndarray | None = None,
+                          antithetic: bool = False) -> np.ndarray | None:
     """How the input force's noise moves ``model``'s residuals on ``data``: a (draws, n)
     array, each row the change of ``data.residuals`` when every trial's force channel
     carries fresh white noise of its level (``input_noise_sigma``; the model smooths it
     as it smooths the measurement). None when the input is not the measured force or a
-    simulation failed."""
+    simulation failed.
+
+    ``antithetic``: each row is half the difference of the residuals with the noise added
+    and subtracted (two simulations a row), the response's linear part: adding a second
+    unit of noise also shifts the model on average (it dithers the action's dry friction
+    more), a second-order change the data's own noise does not hold (on the rigid model's
+    blows the rows' mean square fell 10-45 % with it, towards the right model's
+    residual)."""
     if data.input != "force" or draws < 2:
         return None
     if r0 is None:
@@ -476,15 +484,28 @@ def input_noise_responses(model: ActionModel, data: Data, *, draws: int = INPUT_
     rng = np.random.default_rng(seed)
     levels = [input_noise_sigma(m) for m in data.measurements]
     out = np.empty((draws, r0.size))
-    for k in range(draws):
+
+    def residuals(noise: list[np.ndarray]) -> np.ndarray | None:
         noisy = [replace(m, channels={**m.channels, "force": np.asarray(
-            m.channels["force"], float) + rng.normal(0.0, s, np.shape(m.channels["force"]))})
-            for m, s in zip(data.measurements, levels, strict=True)]
+            m.channels["force"], float) + n}) for m, n in zip(data.measurements, noise,
+                                                               strict=True)]
         dk = replace(data, measurements=noisy)
         rk = dk.residuals(dk.simulate(model))
-        if rk.shape != r0.shape or np.any(rk == FAILED_PENALTY):
+        return None if rk.shape != r0.shape or np.any(rk == FAILED_PENALTY) else rk
+
+    for k in range(draws):
+        noise = [rng.normal(0.0, s, np.shape(m.channels["force"]))
+                 for m, s in zip(data.measurements, levels, strict=True)]
+        rk = residuals(noise)
+        if rk is None:
             return None
-        out[k] = rk - r0
+        if antithetic:
+            rm = residuals([-n for n in noise])
+            if rm is None:
+                return None
+            out[k] = 0.5 * (rk - rm)
+        else:
+            out[k] = rk - r0
     return out
 
 

@@ -4,8 +4,9 @@ A right model's held-out residual is not zero: it holds the sensors' noise and t
 model's response to the noise of the measured force that drives it (the model integrates
 that noise into the motion: where the back check holds the hammer, a force noise of
 0.05 N moves the catch by as much as a missing effect). ``remainder`` draws that floor
-(``stats.noise_floor_draws``: white output noise of each channel's level plus
-``fit.input_noise_responses`` of the model itself) and tests the residual's mean square
+(``stats.noise_floor_draws``: white output noise of each channel's level plus the
+model's own linear response to the input's noise, ``fit.input_noise_responses`` with
+antithetic draws) and tests the residual's mean square
 against it (``stats.floor_test``, a scaled chi-square). Diagnose uses it twice: with no
 effect chosen, to tell "no library effect explains the residual" (it stands above the
 floor) from "no missing effect can be shown" (it does not); with a set chosen, to say
@@ -28,6 +29,8 @@ from rig.analysis import stats
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
 
+FLOOR_PAIRS = 24  # antithetic draws of the input's noise (two simulations each)
+MIN_PLACE_RATIO = 2.0  # a channel's phase is tested alone where its RMS is this many floors
 MIN_BLOCK = 8  # samples (4 ms at 2 kHz): shorter phases are not tested on their own
 
 
@@ -48,6 +51,8 @@ class Place:
                 and math.isfinite(s.frequency_hz) else
                 f"lag ({s.lag_s * 1e3:+.2f} ms)" if s.kind == "lag" and math.isfinite(s.lag_s)
                 else s.kind)
+        if s.kind != "oscillation" and math.isfinite(s.frequency_hz):
+            kind += f" (oscillation {s.osc_share:.0%} at {s.frequency_hz:.0f} Hz)"
         where = f" of {self.label}" if self.label else ""
         return (f"{s.channel} in {s.phase}{where}: {kind}, {s.nrms * 100:.2f} % of range "
                 f"({self.floor_ratio:.1f} x the noise floor)")
@@ -103,14 +108,15 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
     (``measurements``: the trials ``test`` was built from), over the whole and over each
     channel in each phase of each held-out trial (a missing effect is often local: an
     encoder mount ringing after the strike stands 13 times the floor's mean square in the
-    check phase of one channel and is lost in the whole), Bonferroni over those tests.
+    check phase of one channel and is lost in the whole), Bonferroni over those tests; a
+    phase counts only where its RMS is at least ``MIN_PLACE_RATIO`` floors.
     None when the model's simulation fails on them."""
     preds = test.simulate(model)
     r = test.residuals(preds)
     if r.size == 0 or np.any(r == ft.FAILED_PENALTY):
         return None
     floor = stats.noise_floor_draws(test.noise_vector(), ft.input_noise_responses(
-        model, test, r0=r))
+        model, test, r0=r, draws=FLOOR_PAIRS, antithetic=True))
     ratio, p_all = stats.floor_test(r, floor)
     segs, names = test.segments(), test.segment_channels()
     trial_of = [i for i, m in enumerate(test.masks) if m.any() for _ in test.channels[i]]
@@ -140,7 +146,12 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
                 label = measurements[i].label if len(held) > 1 else ""
                 blocks.append((pb, Place(sigs[(c, ph)], math.sqrt(q), pb, i, label)))
     tests = 1 + len(blocks)
-    p = min(1.0, tests * min([p_all, *(pb for pb, _ in blocks)]))
-    places = sorted((pl for pb, pl in blocks if pb * tests <= alpha),
+    # a place counts when it stands clear of the floor (MIN_PLACE_RATIO) and its test passes
+    # Bonferroni's level: the draws' variance is itself uncertain in a short phase, and a
+    # tail probability of 1e-3 from 24 draws is not one to trust alone (with nothing hidden
+    # a whippen's check phase stood 1.8 x the floor's RMS at p = 0.002, 17 tests)
+    clear = [(pb, pl) for pb, pl in blocks if pl.floor_ratio >= MIN_PLACE_RATIO]
+    p = min(1.0, tests * min([p_all, *(pb for pb, _ in clear)]))
+    places = sorted((pl for pb, pl in clear if pb * tests <= alpha),
                     key=lambda pl: -pl.floor_ratio)
     return Remainder(of, ratio, p, alpha, per_channel, places, tests)
