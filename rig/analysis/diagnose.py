@@ -276,9 +276,16 @@ class Diagnosis:
                f"the search stops at {self.max_effects} effects" if len(self.chosen_names)
                >= self.max_effects else
                "no further library candidate removes a significant share of it")
+        own = rem.acting()
+        values = ("" if not own else
+                  " Where a chosen effect acts (" + "; ".join(
+                      f"{p.signature.channel} in {p.signature.phase}: {p.acts}" for p in own)
+                  + ") this can be its fitted values carrying to the held-out trial less well "
+                  "than their uncertainty says, rather than missing physics; more trials "
+                  "tell.")
         return (f". What it leaves stands above the noise floor ({rem.head()}) and {why}: "
-                f"{rem.where()}. If that physics is missing from the library, write it as a "
-                "user effect (docs/effects.md) and try it with --extra file.py:Class")
+                f"{rem.where()}.{values} If physics is missing from the library, write it as "
+                "a user effect (docs/effects.md) and try it with --extra file.py:Class")
 
     def correlation_lines(self) -> list[str]:
         f = self.final
@@ -769,7 +776,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         names = list(chosen[-1].effects or (chosen[-1].name,))
         left = rm.remainder(_set_model(base, by_name, names, chosen[-1].values, rate), test,
                             measurements, of=" + ".join(names), alpha=alpha, align_s=align_s,
-                            channels=channels)
+                            channels=channels, acts={n: by_name[n].signature for n in names})
     else:
         left = rm.remainder(base, test, measurements, of="base model", alpha=alpha,
                             align_s=align_s, channels=channels)

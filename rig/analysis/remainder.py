@@ -16,7 +16,7 @@ channel and phase, in units of the floor.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,6 +28,7 @@ from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis.measurement import Measurement
 from rig.model.action import ActionModel
+from rig.model.effects import Signature
 
 FLOOR_PAIRS = 24  # antithetic draws of the input's noise (two simulations each)
 MIN_PLACE_RATIO = 2.0  # a channel's phase is tested alone where its RMS is this many floors
@@ -44,6 +45,7 @@ class Place:
     p: float
     trial: int = 0
     label: str = ""   # the trial's name when several trials are held out
+    acts: str = ""    # a chosen effect whose signature covers this channel and phase
 
     def text(self) -> str:
         s = self.signature
@@ -78,6 +80,10 @@ class Remainder:
         """'mean square 3.7 times the noise floor's, p = 2e-05'."""
         return f"mean square {self.ratio:.2g} times the noise floor's, p = {self.p:.2g}"
 
+    def acting(self, n: int = 3) -> list[Place]:
+        """Of the first ``n`` places, those where a chosen effect acts."""
+        return [p for p in self.places[:n] if p.acts]
+
     def where(self, n: int = 3) -> str:
         """The places that stand above the floor, or the channels when none does alone."""
         if self.places:
@@ -89,7 +95,7 @@ class Remainder:
         return {"of": self.of, "ratio": _num(self.ratio), "p_value": _num(self.p),
                 "alpha": self.alpha, "significant": self.significant, "tests": self.tests,
                 "channels": {c: _num(r) for c, r in self.channels.items()},
-                "places": [{"trial": p.trial, "channel": p.signature.channel,
+                "places": [{"trial": p.trial, "acts": p.acts, "channel": p.signature.channel,
                             "phase": p.signature.phase, "kind": p.signature.kind,
                             "nrms": _num(p.signature.nrms),
                             "frequency_hz": _num(p.signature.frequency_hz),
@@ -103,13 +109,15 @@ def _num(v: float) -> float | None:
 
 def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurement], *,
               of: str, alpha: float = 0.05, align_s: float = 0.0,
-              channels: Sequence[str] | None = None) -> Remainder | None:
+              channels: Sequence[str] | None = None,
+              acts: Mapping[str, Signature] | None = None) -> Remainder | None:
     """Test ``model``'s residual on the held-out data ``test`` against its noise floor
     (``measurements``: the trials ``test`` was built from), over the whole and over each
     channel in each phase of each held-out trial (a missing effect is often local: an
     encoder mount ringing after the strike stands 13 times the floor's mean square in the
     check phase of one channel and is lost in the whole), Bonferroni over those tests; a
-    phase counts only where its RMS is at least ``MIN_PLACE_RATIO`` floors.
+    phase counts only where its RMS is at least ``MIN_PLACE_RATIO`` floors. ``acts``: the
+    chosen effects' signatures (a place they cover is marked with the effect's name).
     None when the model's simulation fails on them."""
     preds = test.simulate(model)
     r = test.residuals(preds)
@@ -144,7 +152,9 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
                     continue
                 q, pb = stats.floor_test(r[sel], floor[:, sel])
                 label = measurements[i].label if len(held) > 1 else ""
-                blocks.append((pb, Place(sigs[(c, ph)], math.sqrt(q), pb, i, label)))
+                who = next((name for name, es in (acts or {}).items()
+                            if c in es.channels and ph in es.phases), "")
+                blocks.append((pb, Place(sigs[(c, ph)], math.sqrt(q), pb, i, label, who)))
     tests = 1 + len(blocks)
     # a place counts when it stands clear of the floor (MIN_PLACE_RATIO) and its test passes
     # Bonferroni's level: the draws' variance is itself uncertain in a short phase, and a
