@@ -2,16 +2,15 @@
 
 A right model's held-out residual is not zero: it holds the sensors' noise and the
 model's response to the noise of the measured force that drives it (the model integrates
-that noise into the motion: where the back check holds the hammer, a force noise of
-0.05 N moves the catch by as much as a missing effect). ``remainder`` draws that floor
-(``stats.noise_floor_draws``: white output noise of each channel's level plus the
+that noise into the motion: where the back check holds the hammer, the load cell's 0.2 N
+of noise moves the catch by as much as a small missing effect). ``remainder`` draws that
+floor (``stats.noise_floor_draws``: white output noise of each channel's level plus the
 model's own linear response to the input's noise, ``fit.input_noise_responses`` with
-antithetic draws) and tests the residual's mean square
-against it (``stats.floor_test``, a scaled chi-square). Diagnose uses it twice: with no
-effect chosen, to tell "no library effect explains the residual" (it stands above the
-floor) from "no missing effect can be shown" (it does not); with a set chosen, to say
-whether what the set leaves is noise or physics no candidate explains -- and where, by
-channel and phase, in units of the floor.
+antithetic draws) and tests the residual's mean square against it (``stats.floor_test``,
+a scaled chi-square). Diagnose uses it twice: with no effect chosen, to tell "no library
+effect explains the residual" (it stands above the floor) from "no missing effect can be
+shown" (it does not); with a set chosen, to say whether what the set leaves is noise or
+physics no candidate explains -- and where, by channel and phase, in units of the floor.
 """
 from __future__ import annotations
 
