@@ -603,7 +603,7 @@ def stability_notes(first: Sequence[Candidate], base_resid: np.ndarray, test: ft
     if len(cands) < 2:
         return []
     segs = test.segments()
-    trial_of = [i for i, m in enumerate(test.masks) if m.any() for _ in test.channels[i]]
+    trial_of = test.segment_trials()
     groups: dict[str, np.ndarray] = {}
     start = 0
     for n, tr in zip(segs, trial_of, strict=True):

@@ -283,6 +283,11 @@ class Data:
         """The channel of each of ``segments``'s parts, in order."""
         return [c for i, m in enumerate(self.masks) if m.any() for c in self.channels[i]]
 
+    def segment_trials(self) -> list[int]:
+        """The trial (index into ``measurements``) of each of ``segments``'s parts, in
+        order."""
+        return [i for i, m in enumerate(self.masks) if m.any() for _ in self.channels[i]]
+
     def channel_ms(self, preds: list[dict[str, np.ndarray]]) -> dict[str, tuple[float, float]]:
         """Per channel over the masked samples (aligned): (mean square / range^2,
         mean square / noise^2)."""

@@ -126,7 +126,7 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
         model, test, r0=r, draws=FLOOR_PAIRS, antithetic=True))
     ratio, p_all = stats.floor_test(r, floor)
     segs, names = test.segments(), test.segment_channels()
-    trial_of = [i for i, m in enumerate(test.masks) if m.any() for _ in test.channels[i]]
+    trial_of = test.segment_trials()
     starts = np.r_[0, np.cumsum(segs)[:-1]].astype(int)
     by_channel: dict[str, tuple[float, float]] = {}
     for s, n, c in zip(starts, segs, names, strict=True):
