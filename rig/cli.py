@@ -8,7 +8,6 @@ from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from rig.errors import InputError, refuse_existing
 
@@ -657,9 +656,9 @@ def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
 from collections.abc import Callable  # noqa: E402
 
 
-def _analysis_progress(bar: Progress, task: object) -> Callable[[float, float, str], None]:
+def _analysis_progress(bar: Any, task: object) -> Callable[[float, float, str], None]:
     def update(done: float, total: float, text: str = "") -> None:
-        bar.update(task, total=total, completed=done, sim=text)  # type: ignore[arg-type]
+        bar.update(task, total=total, completed=done, sim=text)
 
     return update
 
@@ -728,6 +727,9 @@ def _bar(console_: Console | None = None) -> Any:
     target = console_ or err
     if options.quiet or not target.is_terminal:
         return _LineProgress(quiet=options.quiet)
+    # rich.progress only on a terminal (it imports some 30 of rich's modules)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
     return Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
                     TimeElapsedColumn(), console=target, transient=True)
 

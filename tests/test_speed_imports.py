@@ -12,8 +12,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 # what no light command needs: numerical libraries simulate does not use, plotting,
-# the analysis package, the rig's hardware and service layers
-NOT_FOR_SIMULATE = ("scipy.optimize", "scipy.integrate", "scipy.signal", "matplotlib",
+# the analysis package, the rig's hardware and service layers; numba's compiler
+# registries (a cached blow loads without them: rig.model.cache_loading) and the
+# scipy.linalg they import; pydantic (typer 0.29's option coercion: pinned below it);
+# rich's progress bar (only on a terminal)
+NOT_FOR_SIMULATE = ("scipy.optimize", "scipy.integrate", "scipy.signal", "scipy.linalg",
+                    "numba.np.arraymath", "numba.np.linalg", "pydantic", "rich.progress",
+                    "matplotlib",
                     "plotly", "pandas", "xarray", "SALib", "rig.analysis", "rig.sim_backend",
                     "rig.services.run", "rig.services.diagnose", "rig.calibration",
                     "nidaqmx", "serial")

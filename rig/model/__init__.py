@@ -34,6 +34,12 @@ def _drop_stale_caches(here: Path = _HERE) -> None:
 
 _drop_stale_caches()
 
+# loading cached machine code without importing numba's compiler registries (about
+# 0.2 s of every command that simulates): see rig.model.cache_loading
+from rig.model import cache_loading as _cache_loading  # noqa: E402
+
+_cache_loading.install()
+
 # the effect library's members in their own modules register themselves in
 # rig.model.effects.BUILTIN on import; imported here so the library is whole whichever
 # module of the model is imported first (and effects.py imports none of them: no cycle)
