@@ -2,9 +2,9 @@
 and whatever compiles later in the same process still compiles as before.
 
 Each check runs in a fresh interpreter (a real subprocess): what a process has
-imported is the point. The model's compiled functions are in numba's cache by the
-time these run (tests/conftest.py warms it; otherwise the first blow compiles them
-and a second process is needed, which ``blow`` provides).
+imported is the point. ``blow`` runs its process twice: the first may compile the
+model's functions into numba's cache (a fresh checkout), the second, whose result
+is checked, loads them from it.
 """
 
 from __future__ import annotations
