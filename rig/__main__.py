@@ -1,5 +1,5 @@
 """``python -m rig``: the same command line as the ``rig`` script."""
 
-from rig.cli import app
+from rig.cli import main
 
-app(prog_name="rig")
+main()

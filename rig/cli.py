@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -1009,5 +1010,20 @@ def sweep_cmd(
         console.print(f"wrote {report}", markup=False, highlight=False)
 
 
+def main() -> None:
+    """The ``rig`` command (console script and ``python -m rig``): the app, then an exit
+    that skips the interpreter's last garbage collection.
+
+    That collection walks every object the command's imports made (numba's dispatchers
+    and type system, the model, h5py): 0.08-0.1 s of every command that simulates
+    (docs/performance.md). Nothing depends on it: the commands close and flush their
+    files themselves, and ``atexit`` handlers and ``weakref.finalize`` still run.
+    """
+    try:
+        app(prog_name="rig")
+    finally:
+        gc.freeze()
+
+
 if __name__ == "__main__":  # pragma: no cover
-    app()
+    main()

@@ -37,7 +37,7 @@ from numba import njit
 
 from rig.errors import InputError
 from rig.model import kernel as k
-from rig.model.integrators import Advance, _compiled_only, _hermite, force_at
+from rig.model.integrators import Advance, _compiled_only, _hermite, force_at, link_standalone_rhs
 
 
 def _transformed(alpha: np.ndarray, gamma: np.ndarray, b: np.ndarray,
@@ -578,6 +578,7 @@ class Rosenbrock:
         _compiled_only(self.name, extra_force)
         y0 = np.ascontiguousarray(y0, dtype=float)
         act = _active(model, y0.shape[0])
+        link_standalone_rhs(model, ws, y0)
         na = act.shape[0]
         c = self._cache
         if (c is not None and c[0] is model and c[1] == t0 and c[3].shape[0] == na
