@@ -1,8 +1,15 @@
-"""Shared fixtures: the shipped profiles and blows simulated once per session."""
+"""Shared fixtures: the shipped profiles and blows simulated once per session, and a
+fresh interpreter's result read twice (for checks of what a new process loads)."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -18,6 +25,25 @@ def _rest_cache(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("RIG_CACHE_DIR", str(tmp_path_factory.mktemp("rig-cache")))
         yield
+
+
+def _fresh_twice(code: str, args: list[str], cwd: Path, **env: str) -> dict[str, Any]:
+    """``python -c CODE ARGS`` in a fresh interpreter, twice (the first may compile into
+    numba's cache, on a fresh checkout; the second loads from it), with RIG_CACHE_DIR in
+    ``cwd``: the JSON the second prints after ``RESULT``."""
+    environ = {**os.environ, "RIG_CACHE_DIR": str(cwd / "cache"), **env}
+    for _ in range(2):
+        proc = subprocess.run([sys.executable, "-c", code, *args], cwd=cwd, env=environ,
+                              capture_output=True, text=True, timeout=1800)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if x.startswith("RESULT"))
+    return json.loads(line[len("RESULT"):])
+
+
+@pytest.fixture
+def fresh_twice() -> Callable[..., dict[str, Any]]:
+    """Run code in a fresh interpreter twice and read the second's RESULT line."""
+    return _fresh_twice
 
 
 @pytest.fixture(scope="session")

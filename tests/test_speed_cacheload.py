@@ -9,10 +9,6 @@ is checked, loads them from it.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,30 +48,24 @@ print("RESULT" + json.dumps(out))
 """
 
 
-def blow(tmp_path: Path, then: str = "", **env: str) -> dict:
+def blow(fresh_twice, tmp_path: Path, then: str = "", **env: str) -> dict:
     """A fresh process's blow (run twice: the second loads everything from the cache)."""
-    environ = {**os.environ, "RIG_CACHE_DIR": str(tmp_path / "cache"), **env}
-    args = [sys.executable, "-c", _BLOW, str(ROOT / "profiles" / "forte.yaml"), then or "-"]
-    for _ in range(2):
-        proc = subprocess.run(args, cwd=tmp_path, env=environ, capture_output=True,
-                              text=True, timeout=900)
-        assert proc.returncode == 0, proc.stdout + proc.stderr
-    line = next(x for x in proc.stdout.splitlines() if x.startswith("RESULT"))
-    return json.loads(line[len("RESULT"):])
+    return fresh_twice(_BLOW, [str(ROOT / "profiles" / "forte.yaml"), then or "-"], tmp_path,
+                       **env)
 
 
-def test_a_cached_blow_loads_without_the_compiler_registries(tmp_path):
-    lazy = blow(tmp_path)
+def test_a_cached_blow_loads_without_the_compiler_registries(fresh_twice, tmp_path):
+    lazy = blow(fresh_twice, tmp_path)
     assert lazy["installed"] and lazy["success"]
     assert not lazy["arraymath_after_blow"]
     assert not lazy["scipy_linalg_after_blow"]
-    eager = blow(tmp_path, RIG_NUMBA_EAGER_REGISTRIES="1")
+    eager = blow(fresh_twice, tmp_path, RIG_NUMBA_EAGER_REGISTRIES="1")
     assert not eager["installed"]
     assert eager["arraymath_after_blow"]  # numba's own refresh imports it
     assert eager["key_end"] == lazy["key_end"]  # the same machine code, the same blow
 
 
-def test_a_compile_after_a_cached_load_sees_every_registry(tmp_path):
-    out = blow(tmp_path, "compile")
+def test_a_compile_after_a_cached_load_sees_every_registry(fresh_twice, tmp_path):
+    out = blow(fresh_twice, tmp_path, "compile")
     assert out["installed"] and not out["arraymath_after_blow"]
     assert out["later"] == out["later_expected"]

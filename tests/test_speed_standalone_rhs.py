@@ -13,10 +13,6 @@ compile into numba's cache (a fresh checkout), the second, which is checked, loa
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -52,26 +48,19 @@ print("RESULT" + json.dumps({"order": order, "success": bool(r.success),
 """
 
 
-def blow(tmp_path: Path, integrator: str, link: bool) -> dict:
+def blow(fresh_twice, tmp_path: Path, integrator: str, link: bool) -> dict:
     """A fresh process's blow (run twice: the second loads everything from the cache)."""
-    environ = {**os.environ, "RIG_CACHE_DIR": str(tmp_path / "cache")}
-    args = [sys.executable, "-c", _BLOW, str(ROOT / "profiles" / "forte.yaml"), integrator,
-            "1" if link else "0"]
-    for _ in range(2):
-        proc = subprocess.run(args, cwd=tmp_path, env=environ, capture_output=True,
-                              text=True, timeout=1800)
-        assert proc.returncode == 0, proc.stdout + proc.stderr
-    line = next(x for x in proc.stdout.splitlines() if x.startswith("RESULT"))
-    return json.loads(line[len("RESULT"):])
+    return fresh_twice(_BLOW, [str(ROOT / "profiles" / "forte.yaml"), integrator,
+                               "1" if link else "0"], tmp_path)
 
 
 @pytest.mark.parametrize("integrator", ["rosenbrock", "dopri54", "rk4"])
-def test_the_integrator_calls_the_standalone_rhs_and_the_blow_is_unchanged(tmp_path,
-                                                                          integrator):
-    linked = blow(tmp_path, integrator, link=True)
+def test_the_integrator_calls_the_standalone_rhs_and_the_blow_is_unchanged(fresh_twice,
+                                                                          tmp_path, integrator):
+    linked = blow(fresh_twice, tmp_path, integrator, link=True)
     assert linked["success"]
     assert integrator in linked["order"] and "rhs" in linked["order"]
     assert linked["order"].index("rhs") < linked["order"].index(integrator)
-    own = blow(tmp_path, integrator, link=False)
+    own = blow(fresh_twice, tmp_path, integrator, link=False)
     assert "rhs" not in own["order"][: own["order"].index(integrator)]
     assert own["digest"] == linked["digest"] and own["steps"] == linked["steps"]

@@ -60,7 +60,7 @@ class Advance:
         return self.status == STATUS_OK
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def force_at(t, force_t, force_f, hint):
     """Key force (N) at t, linear between knots; hint[0] caches the last segment."""
     n = force_t.shape[0]
@@ -124,7 +124,7 @@ def link_standalone_rhs(model: k.Model, ws: k.Workspace, y0: np.ndarray) -> bool
 LINK_STANDALONE_RHS = True
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def _hermite(t0, h, y0, f0, y1, f1, tau, out, row):
     s = (tau - t0) / h
     s2 = s * s
@@ -137,7 +137,7 @@ def _hermite(t0, h, y0, f0, y1, f1, tau, out, row):
         out[row, i] = h00 * y0[i] + h10 * h * f0[i] + h01 * y1[i] + h11 * h * f1[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dopri_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t, out_y,
               max_steps):
     """Adaptive Dormand-Prince 5(4) from t0 to t1; Hermite output at out_t."""
@@ -243,7 +243,7 @@ def dopri_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out
     return y, t, h, steps, rejected, n_rhs, status, j
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rk4_run(model, ws, y0, t0, t1, h, force_t, force_f, out_t, out_y):
     """Classical RK4 with fixed step h (the last step is shortened to land on t1)."""
     n = y0.shape[0]

@@ -83,7 +83,7 @@ DP_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
 DP_E = np.array([71 / 57600, 0.0, -71 / 16695, 71 / 1920, -17253 / 339200, 22 / 525, -1 / 40])
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def _lu(S, piv, n):
     """In-place LU factorisation with partial pivoting of S[:n, :n]."""
     for c in range(n):
@@ -111,7 +111,7 @@ def _lu(S, piv, n):
     return True
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def _lu_solve(S, piv, x, n):
     """Solve with the factors of _lu, x overwritten."""
     for c in range(n):
@@ -132,7 +132,7 @@ def _lu_solve(S, piv, x, n):
         x[r] = acc / S[r, r]
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def _force_slope(t, force_t, force_f):
     """d(key force)/dt just after t (zero outside the knots)."""
     n = force_t.shape[0]
@@ -147,7 +147,7 @@ def _force_slope(t, force_t, force_f):
     return (force_f[i + 1] - force_f[i]) / span
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def jacobian(t, y, fy, fkey, model, ws, act, JA, JB, gk, ytmp, ftmp):
     """Finite-difference d(qddot)/dq (JA) and d(qddot)/dqdot (JB) on the active
     coordinates, and gk = d(dy/dt)/d(key force). Returns the rhs calls used."""
@@ -179,7 +179,7 @@ def jacobian(t, y, fy, fkey, model, ws, act, JA, JB, gk, ytmp, ftmp):
     return 2 * na + 1
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def _spectral_radius(JA, JB, na, v, w):
     """|lambda|max of J = [[0, I], [JA, JB]] by 24 power iterations (works for pairs)."""
     for i in range(2 * na):
@@ -207,7 +207,7 @@ def _spectral_radius(JA, JB, na, v, w):
     return math.exp(logsum / cnt)
 
 
-@njit(cache=True)
+@njit(**k.HOT)
 def axial_advance(h, u0, v0, s0, s1, w2, beta):
     """Exact step of the one-way coupled axial coordinate over h.
 
@@ -242,8 +242,8 @@ def axial_advance(h, u0, v0, s0, s1, w2, beta):
 ST_AGE, ST_MODE, ST_HEXP, ST_STIFF, ST_SLOW = range(5)
 
 
-@njit(cache=True)
-def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t, out_y,
+@njit(**k.HOT)
+def ros_run(model, ws, work, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t, out_y,
             max_steps, act, JA, JB, gk, state, jac_reuse, refresh_age, switching, to_implicit,
             to_explicit, trace):
     """Adaptive steps from t0 to t1 with Hermite output at out_t.
@@ -255,42 +255,24 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     (kernel.S_AXIAL_ONEWAY) is not part of the steps: it is advanced exactly over each
     accepted step (axial_advance) under the quasi-static strain at the step's ends, and
     left out of the error norm.
+
+    ``work`` (``ros_work``): the state y (y0 on entry, y at the end on exit) and the
+    scratch arrays. Allocation-free, so compiled without numba's reference counting.
     """
+    y, f0, f1, fs, yt, ynew, r, U, K, S, piv, x, pv, pw, ftmp, ytmp, hint, ew = work
     a, c, m, e, alpha, gsum = ROS_A, ROS_C, ROS_M, ROS_E, ROS_ALPHA, ROS_GSUM
     gam = ROS_GAMMA
-    n = y0.shape[0]
+    n = y.shape[0]
     nq = k.NQ
     na = act.shape[0]
     s = m.shape[0]
-    y = y0.copy()
-    f0 = np.empty(n)
-    f1 = np.empty(n)
-    fs = np.empty(n)
-    yt = np.empty(n)
-    ynew = np.empty(n)
-    r = np.empty(n)
-    U = np.zeros((s, n))
-    K = np.zeros((6, n))
-    S = np.empty((na, na))
-    piv = np.zeros(na, dtype=np.int64)
-    x = np.empty(na)
-    pv = np.empty(2 * na)
-    pw = np.empty(2 * na)
-    ftmp = np.empty(n)
-    ytmp = np.empty(n)
-    hint = np.zeros(1, dtype=np.int64)
     sp = model.sp
     axial = sp[k.S_FLEX] > 0.5 and sp[k.S_AXIAL_ONEWAY] > 0.5
     iu = k.QU1
     iv = nq + k.QU1
     w2 = sp[k.S_AXW2]
     beta = sp[k.S_BETA]
-    ew = np.ones(n)
-    n_err = n
-    if axial:
-        ew[iu] = 0.0
-        ew[iv] = 0.0
-        n_err = n - 2
+    n_err = n - 2 if axial else n
     t = t0
     h = min(h0, hmax, t1 - t0)
     hmin = 1e-13
@@ -531,7 +513,22 @@ def ros_run(model, ws, y0, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out_t
     state[ST_HEXP] = h_exp
     state[ST_STIFF] = stiff
     state[ST_SLOW] = slow
-    return y, t, h, steps, rejected, n_rhs, n_jac, status, j
+    return t, h, steps, rejected, n_rhs, n_jac, status, j
+
+
+def ros_work(y0: np.ndarray, na: int, model: k.Model) -> tuple[np.ndarray, ...]:
+    """ros_run's work arrays: the state (a copy of y0), stage and scratch vectors, the
+    LU's matrix and pivots, the force table's search hint, the error norm's weights."""
+    n = y0.shape[0]
+    ew = np.ones(n)  # a one-way coupled axial pair is not stepped: out of the error norm
+    if model.sp[k.S_FLEX] > 0.5 and model.sp[k.S_AXIAL_ONEWAY] > 0.5:
+        ew[k.QU1] = 0.0
+        ew[k.NQ + k.QU1] = 0.0
+    return (np.array(y0, dtype=float, copy=True), np.empty(n), np.empty(n), np.empty(n),
+            np.empty(n), np.empty(n), np.empty(n), np.zeros((ROS_M.shape[0], n)),
+            np.zeros((6, n)), np.empty((na, na)), np.zeros(na, dtype=np.int64), np.empty(na),
+            np.empty(2 * na), np.empty(2 * na), np.empty(n), np.empty(n),
+            np.zeros(1, dtype=np.int64), ew)
 
 
 @dataclass
@@ -592,10 +589,12 @@ class Rosenbrock:
             state = np.zeros(5)
             state[ST_MODE] = 1.0  # start implicit: the rest state is stiff
         out = np.empty((out_t.shape[0], y0.shape[0]))
-        y, _t, h, steps, rej, nrhs, njac, status, nfill = ros_run(
-            model, ws, y0, t0, t1, step, force_t, force_f, self.rtol, atol, self.max_step,
+        work = ros_work(y0, na, model)
+        _t, h, steps, rej, nrhs, njac, status, nfill = ros_run(
+            model, ws, work, t0, t1, step, force_t, force_f, self.rtol, atol, self.max_step,
             out_t, out, self.max_steps, act, JA, JB, gk, state, self.jac_reuse,
             self.refresh_age, self.switching, self.to_implicit, self.to_explicit, self._trace)
+        y = work[0]
         self.n_jac += njac
         self._cache = (model, t1, y.copy(), JA, JB, gk, state) if status == 0 else None
         return Advance(y, out[:nfill], h, steps, rej, nrhs, status)

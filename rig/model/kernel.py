@@ -29,15 +29,27 @@ enter through J^T F, inertia as sum m Jc^T Jc + I Jphi Jphi^T, and velocity-prod
 terms through each frame's bias acceleration. Everything
 is scalar code so numba compiles it; with NUMBA_DISABLE_JIT=1 the same code runs
 as plain Python/numpy (the reference implementation of the benchmark).
+
+Compiled with numpy's error model: a division by zero (a zero parameter) gives inf or
+NaN, which the integrators report as a non-finite state, not an exception from inside a
+blow. The functions called per step and per output row (``rhs``, ``sample_outputs``,
+``energy``, and the Rosenbrock integrator's loop) allocate nothing (they work in the
+arrays they are given), so they are compiled without numba's reference counting
+(``_nrt=False``): counting the references of the model's and workspace's arrays took
+9 % of a full blow (docs/performance.md).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
+
+# numba's options for what runs per step and per output row: cached, numpy's error
+# model, no reference counting (``_nrt``: numba's own flag, missing from its typing)
+HOT: dict[str, Any] = {"cache": True, "error_model": "numpy", "_nrt": False}
 
 NQ = 10
 NY = 2 * NQ
@@ -95,7 +107,7 @@ O_PEN, O_PENRATE, O_FN, O_FT, O_SLIP, O_PX, O_PY = range(7)
 N_CONTACT_OUT = 7
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _block(f):
     """Coordinate range [lo, hi) that moves frame f."""
     if f <= F_KEY:
@@ -105,7 +117,7 @@ def _block(f):
     return 5, 9
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _shank_point(xi, q, qd, sp):
     """Centre of the shank's cross-section at xi from the root, in the hammer frame.
 
@@ -141,7 +153,7 @@ def _shank_point(xi, q, qd, sp):
     return px, py, pdx, pdy, ds1, ds2, quad
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, need_cs):
     """Frame k = cross-section of the shank at distance xi from its root."""
     th = q[QH]
@@ -196,7 +208,7 @@ def beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, 
     al[k] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, al, cs, qi):
     """Frame k pinned at parent-frame point (px, py), turning by coordinate qi."""
     c = cs[parent, 0]
@@ -223,7 +235,7 @@ def _child_frame(k, parent, px, py, q_own, qd_own, org, phi, w, vO, JO, Jp, aO, 
     al[k] = al[parent]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
     """Fill every frame's pose, velocity, Jacobians and bias accelerations."""
     nf = org.shape[0]
@@ -277,7 +289,7 @@ def kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs):
                       cs, ch, sh, True)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _add_point_force(f, px, py, fx, fy, org, JO, Jp, Q):
     if f == F_GROUND:
         return
@@ -289,7 +301,7 @@ def _add_point_force(f, px, py, fx, fy, org, JO, Jp, Q):
         Q[j] += JO[f, 0, j] * fx + JO[f, 1, j] * fy + Jp[f, j] * mom
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _feature_world(cf, i, side, org, cs):
     f = int(cf[i, side, C_FRAME])
     c = cs[f, 0]
@@ -301,7 +313,7 @@ def _feature_world(cf, i, side, org, cs):
     return f, org[f, 0] + c * x - s * y, org[f, 1] + s * x + c * y, c * nx - s * ny, s * nx + c * ny
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def contact_geometry(cf, i, org, phi, cs):
     """Penetration (m), unit normal from body 1 to body 2, and contact point."""
     k1 = int(cf[i, 0, C_KIND])
@@ -359,14 +371,14 @@ def contact_geometry(cf, i, org, phi, cs):
     return f1, f2, pen, nx, ny, px, py
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def friction_coefficient(slip, mu_a, b1, b2, vt):
     """Smoothed Coulomb law, Eq. 3.6 (odd in the slip speed)."""
     r = slip / vt
     return mu_a * (math.tanh(r) + b1 * r / (1.0 + b2 * r * r * r * r))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def bristle_coefficient(slip, mu_a, mu_s, vt):
     """Steady sliding coefficient g(v) = A + (mu_s - A) exp(-(v/v_t)^2) of the bristle law
     (the Stribeck curve of LuGre; equal to Eq. 3.6's A once |v| >> v_t)."""
@@ -374,7 +386,7 @@ def bristle_coefficient(slip, mu_a, mu_s, vt):
     return mu_a + (mu_s - mu_a) * math.exp(-r * r)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def bristle_rate(slip, z, mu_a, mu_s, vt, sig0):
     """dz/dt of the bristle law: slip - sig0 |slip| z / g(slip) (LuGre, per newton).
 
@@ -383,7 +395,7 @@ def bristle_rate(slip, z, mu_a, mu_s, vt, sig0):
     return slip - sig0 * abs(slip) * z / bristle_coefficient(slip, mu_a, mu_s, vt)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def normal_force(pen, pen_rate, a, b, c, d):
     """Eq. 3.2-3.3: f = (a x^3 + b x^2 + c x)(1 + D xdot), never pulling."""
     if pen <= 0.0:
@@ -392,7 +404,7 @@ def normal_force(pen, pen_rate, a, b, c, d):
     return f if f > 0.0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def normal_force_law(pen, pen_rate, law):
     """Normal force (N) of one contact under its law row (see LAW_* types)."""
     kind = int(law[L_TYPE])
@@ -426,7 +438,7 @@ def normal_force_law(pen, pen_rate, law):
     return normal_force(pen, pen_rate, a, b, c, law[L_D])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen, forces=True):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
@@ -486,14 +498,14 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen,
     return zrate, zload
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def joint_torque(omega, e, f1, f2, wt):
     """Eq. 3.8 pin-joint friction torque (opposes the joint's relative speed)."""
     r = omega / wt
     return e * (math.tanh(r) + f1 * r / (1.0 + f2 * r * r * r * r))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def mass_element(f, m, inertia, cx, cy, g, cs, w, JO, Jp, aO, al, M, Q):
     rx = cs[f, 0] * cx - cs[f, 1] * cy
     ry = cs[f, 1] * cx + cs[f, 0] * cy
@@ -511,7 +523,7 @@ def mass_element(f, m, inertia, cx, cy, g, cs, w, JO, Jp, aO, al, M, Q):
             M[a, b] += m * (ja_x * jb_x + ja_y * jb_y) + inertia * Jp[f, a] * Jp[f, b]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _solve(M, b, x, lo, n):
     """Solve the diagonal block [lo, n) by Gaussian elimination with partial pivoting.
 
@@ -588,7 +600,7 @@ def make_workspace(n_frames: int, n_contacts: int) -> Workspace:
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
     """Mass matrix, gravity and velocity-product terms of the flexible shank's Gauss
     particles (xi, mass, rotary inertia) on the hammer block.
@@ -636,7 +648,7 @@ def _shank_inertia(q, qd, sp, beam, g, ch, sh, M, Q, jb):
             M[QH + i, QH + j] = M[QH + j, QH + i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _inertia(q, qd, g, model, ws):
     """Kinematics, then M and Q with gravity and velocity-product terms (all bodies)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
@@ -654,7 +666,7 @@ def _inertia(q, qd, g, model, ws):
         _shank_inertia(q, qd, sp, beam, g, cs[F_HAMMER, 0], cs[F_HAMMER, 1], M, Q, jb)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def accelerations(t, y, f_key, model, ws, full):
     """Generalized accelerations for state y under key force f_key (N, downward)."""
     sp, sec_xi, cf, cl, jf, me, beam = model
@@ -732,7 +744,7 @@ def accelerations(t, y, f_key, model, ws, full):
     return qdd
 
 
-@njit(cache=True)
+@njit(**HOT)
 def rhs(t, y, f_key, model, ws, dy):
     """dy/dt of the state under key force f_key."""
     qdd = accelerations(t, y, f_key, model, ws, False)
@@ -746,7 +758,7 @@ X_HEAD_VX, X_HEAD_VY, X_HEAD_X, X_HEAD_Y, X_KEYTOP_Y, X_TIP_DEFL, X_STRAIN, X_KE
 N_X = 8
 
 
-@njit(cache=True)
+@njit(**HOT)
 def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     """Derived channels for each state row of Y under key forces F.
 
@@ -782,7 +794,7 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
         out[X_KEY_LIFT, r] = y[QYK]
 
 
-@njit(cache=True)
+@njit(**HOT)
 def energy(y, model, ws):
     """Kinetic, gravitational and elastic (shank) energy (J) of state y."""
     sp, sec_xi, cf, cl, jf, me, beam = model
