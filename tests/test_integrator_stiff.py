@@ -334,3 +334,23 @@ def test_axial_coupling_parameter_is_checked() -> None:
     par = Parameters.default().set("hammer_shank_axial.coupling", "none")
     with pytest.raises(ValueError, match="hammer_shank_axial.coupling"):
         ActionModel(par, effects=FULL)
+
+
+def test_the_force_slope_from_a_remembered_segment_is_the_tables_slope_anywhere():
+    """_force_slope keeps the last segment in hint[1] (force_at's is hint[0]) and walks
+    from it either way: the slope just after t, for times in any order, is the table's."""
+    from rig.model.integrators_stiff import _force_slope
+
+    rng = np.random.default_rng(7)
+    ft = np.cumsum(rng.uniform(1e-4, 2e-3, 400))
+    ff = rng.uniform(0.0, 50.0, ft.size)
+    hint = np.array([3, 250], dtype=np.int64)
+    times = np.r_[rng.uniform(ft[0] - 0.01, ft[-1] + 0.01, 300), ft[::37], ft[-1], ft[0]]
+    for t in times:
+        got = _force_slope(t, ft, ff, hint)
+        if t < ft[0] or t >= ft[-1]:
+            assert got == 0.0
+            continue
+        i = np.searchsorted(ft, t, side="right") - 1  # the segment [ft[i], ft[i+1]) holding t
+        assert got == (ff[i + 1] - ff[i]) / (ft[i + 1] - ft[i])
+        assert hint[0] == 3  # force_at's entry is left alone

@@ -133,14 +133,21 @@ def _lu_solve(S, piv, x, n):
 
 
 @njit(**k.HOT)
-def _force_slope(t, force_t, force_f):
-    """d(key force)/dt just after t (zero outside the knots)."""
+def _force_slope(t, force_t, force_f, hint):
+    """d(key force)/dt just after t (zero outside the knots); hint[1] caches the last
+    segment (a table of 6001 knots, an effect's transformed input, was scanned from its
+    start at every implicit step)."""
     n = force_t.shape[0]
     if n < 2 or t < force_t[0] or t >= force_t[n - 1]:
         return 0.0
-    i = 0
+    i = hint[1]
+    if i < 0 or i > n - 2:
+        i = 0
     while i < n - 2 and force_t[i + 1] <= t:
         i += 1
+    while i > 0 and force_t[i] > t:
+        i -= 1
+    hint[1] = i
     span = force_t[i + 1] - force_t[i]
     if span <= 0.0:
         return 0.0
@@ -327,7 +334,7 @@ def ros_run(model, ws, work, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out
                     S[ii, jj] = -g * JB[ii, jj] - JA[ii, jj]
                 S[ii, ii] += g * g
             finite = _lu(S, piv, na)
-            slope = _force_slope(t, force_t, force_f)
+            slope = _force_slope(t, force_t, force_f, hint)
             for st in range(s):
                 if not finite:
                     break
@@ -518,7 +525,8 @@ def ros_run(model, ws, work, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out
 
 def ros_work(y0: np.ndarray, na: int, model: k.Model) -> tuple[np.ndarray, ...]:
     """ros_run's work arrays: the state (a copy of y0), stage and scratch vectors, the
-    LU's matrix and pivots, the force table's search hint, the error norm's weights."""
+    LU's matrix and pivots, the force table's search hints (force_at's, the slope's),
+    the error norm's weights."""
     n = y0.shape[0]
     ew = np.ones(n)  # a one-way coupled axial pair is not stepped: out of the error norm
     if model.sp[k.S_FLEX] > 0.5 and model.sp[k.S_AXIAL_ONEWAY] > 0.5:
@@ -528,7 +536,7 @@ def ros_work(y0: np.ndarray, na: int, model: k.Model) -> tuple[np.ndarray, ...]:
             np.empty(n), np.empty(n), np.empty(n), np.zeros((ROS_M.shape[0], n)),
             np.zeros((6, n)), np.empty((na, na)), np.zeros(na, dtype=np.int64), np.empty(na),
             np.empty(2 * na), np.empty(2 * na), np.empty(n), np.empty(n),
-            np.zeros(1, dtype=np.int64), ew)
+            np.zeros(2, dtype=np.int64), ew)
 
 
 @dataclass
