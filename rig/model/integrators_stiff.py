@@ -279,7 +279,10 @@ def ros_run(model, ws, work, t0, t1, h0, force_t, force_f, rtol, atol, hmax, out
     iv = nq + k.QU1
     w2 = sp[k.S_AXW2]
     beta = sp[k.S_BETA]
-    n_err = n - 2 if axial else n
+    n_err = 0  # the components in the error norm (ros_work's weights say which)
+    for i in range(n):
+        if ew[i] > 0.0:
+            n_err += 1
     t = t0
     h = min(h0, hmax, t1 - t0)
     hmin = 1e-13
