@@ -107,9 +107,9 @@ def link_standalone_rhs(model: k.Model, ws: k.Workspace, y0: np.ndarray) -> bool
     slower than ``kernel.rhs`` compiled on its own (docs/performance.md, "The
     right-hand side loaded on its own"). That copy is a weak symbol, so when
     ``kernel.rhs`` is already loaded the loader binds the integrator's calls to it. Called
-    before every compiled integrator's loop; the first call in a process loads it (20-40
-    ms from numba's cache) with scratch copies of the state and workspace, later calls
-    return at once. True if it loaded it now.
+    before every compiled integrator's loop; the first call in a process loads it (40-50
+    ms from numba's cache on this host, measured) with scratch copies of the state and
+    workspace, later calls return at once. True if it loaded it now.
     """
     if not LINK_STANDALONE_RHS or k.rhs.overloads:
         return False
