@@ -5,7 +5,8 @@ two-peak): the maximum and RMS error (% of the peak) of the load cell's force
 (what the loop sees, with its noise) and of the true key force, for the open-loop
 8 ms advance, the static map + lag compensation (demand = profile(t + 8 ms) / K,
 K = 0.9322 N/N), and each of 5 ILC trials (rig.control.ilc, defaults: the model-based,
-noise-aware update through the thesis's single and rise/fall models; ``--p-type``: the
+noise-aware update through the thesis's single and rise/fall models, with the minimax
+plan where it beats the Newton step; ``--no-plan``: without the plan; ``--p-type``: the
 earlier P-type update) started from the advance, with each trial's note (the model
 picked, its gain, whether the table changed); then the same with the load-cell PI
 (rig.control.feedback, comparing with the profile) in the loop and in the learning's
@@ -14,7 +15,7 @@ down 10 % from the first trial to the last, and a learning gain 6x too high (mus
 then learners whose models are wrong (time constants x1.3, K x0.9).
 Limits (motor_torque.Limiter) acting on any learned demand are counted.
 
-    python benchmarks/tracking.py [--trials 5] [--seed 1] [--p-type]
+    python benchmarks/tracking.py [--trials 5] [--seed 1] [--p-type] [--no-plan]
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": 
 HZ = 500.0
 NOISE = CFG.sim.load_cell_noise_n
 P_TYPE = False
+PLAN = True
 
 
 def fmt(m: dict[str, float], k: dict[str, float]) -> str:
@@ -78,7 +80,7 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
     models = () if P_TYPE else (mismatched(mismatch) if mismatch else None)
     lrn = ilc.Learner.start(r, adv, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
                             HZ, noise_n=noise, models=models, step=factor,
-                            controller=feedback.LoadCellPI() if pi else None)
+                            controller=feedback.LoadCellPI() if pi else None, minimax=PLAN)
     limited = 0
     keys = []
     for k in range(trials):
@@ -101,9 +103,10 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--p-type", action="store_true", help="the earlier P-type update")
+    ap.add_argument("--no-plan", action="store_true", help="no minimax plan (Newton steps only)")
     a = ap.parse_args()
-    global P_TYPE
-    P_TYPE = a.p_type
+    global P_TYPE, PLAN
+    P_TYPE, PLAN = a.p_type, not a.no_plan
     print("columns: measured force max % RMS % | true key force max % RMS % (of the peak)")
     for variant in ("single", "asymmetric", "step_size"):
         for name in ("forte", "piano", "two-peak"):

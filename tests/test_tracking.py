@@ -15,6 +15,7 @@ import pytest
 
 from rig import backends, config, profiles
 from rig.control import feedback, ilc, offline
+from rig.errors import InputError
 
 CFG = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"}})
 HZ = 500.0
@@ -29,11 +30,11 @@ def grid(name: str) -> tuple[profiles.Profile, np.ndarray, np.ndarray]:
 
 def learn(name: str, variant: str, trials: int = 5, factor: float = 1.0, noise: float = NOISE,
           jitter: float = 0.0, drift: float = 0.0, seed: int = 1, pi: bool = False,
-          models=None):
+          models=None, minimax: bool = True):
     p, r, u0 = grid(name)
     lrn = ilc.Learner.start(r, u0, ilc.LearningFilter.default(HZ, 0.008, factor), CFG.limits,
                             HZ, noise_n=noise, step=factor, models=models,
-                            controller=feedback.LoadCellPI() if pi else None)
+                            controller=feedback.LoadCellPI() if pi else None, minimax=minimax)
     rng = np.random.default_rng(seed)
     keys, tables = [], []
     for k in range(trials):
@@ -77,13 +78,13 @@ def test_learns_the_asymmetric_drive_through_its_rise_fall_model(name):
     best, k = best_key(lrn, keys)
     assert keys[0]["max_pct"] > 12.0
     assert "rise/fall" in lrn.notes[0]               # the model that explains the trial
-    # issue 18's 2 % key maximum is NOT met reliably: 1.9-2.3 % with the benchmark's noise
-    # sequence, 3.0-5.2 % with this one (seeds 1-5 of this test: 4.46, 5.19, 4.39, 3.33,
-    # 3.05 %; the release's end, where the slow fall model and the demand's floor at 0
-    # meet); RMS 0.5-1.1 %. No demand whose drive mode switches at most twice reaches 2 %
-    # on forte (test_no_release_with_one_mode_switch_reaches_2_percent_on_forte)
-    assert k["max_pct"] <= 5.0 and k["rms_pct"] <= 1.2
-    assert best["rms_pct"] <= 1.5
+    # issue 18's 2 % key maximum is NOT met on forte: no demand whose drive mode switches
+    # at most twice reaches it (the two-switch bound is 2.14 %,
+    # test_no_release_with_one_mode_switch_reaches_2_percent_on_forte). The minimax plan
+    # reaches 2.25-2.41 % (seeds 1-5 of this test; 3.05-5.19 % with Newton steps alone),
+    # RMS 0.48-0.49 %; two-peak 1.20 % (Newton steps alone 3.0 %)
+    assert k["max_pct"] <= 2.6 and k["rms_pct"] <= 0.6
+    assert best["rms_pct"] <= 1.2
 
 
 def test_the_linear_p_type_update_does_not_learn_the_asymmetric_drive():
@@ -154,14 +155,18 @@ def test_a_drifting_gain_is_re_estimated_and_extrapolated():
 
 def test_load_cell_pi_with_learning_is_not_worse_than_learning_alone():
     # issue 18 case c: the PI compares the load cell with the profile (target_n), and the
-    # update inverts the closed loop (LoadCellPI.lifted)
-    _, alone, k_alone, _ = learn("forte", "single")
+    # update inverts the closed loop (LoadCellPI.lifted). The minimax plan is for the open
+    # loop, so the same Newton-type learning without it is what the PI is compared with
+    _, alone, k_alone, _ = learn("forte", "single", minimax=False)
     _, both, k_both, _ = learn("forte", "single", pi=True)
+    _, planned, k_planned, _ = learn("forte", "single")
     ka, kb = best_key(alone, k_alone)[1], best_key(both, k_both)[1]
     # before: 4.5 % with the PI against 1.9 % without. Now within 0.75 % of learning alone
     # (measured 1.9-2.4 % against 1.8-2.0 %: the PI feeds the load cell's noise to the key)
     assert kb["max_pct"] <= 3.0 and kb["rms_pct"] <= 1.0
     assert kb["max_pct"] <= ka["max_pct"] + 0.75
+    # the open loop with the plan is better still (0.87 % against 2.36 % with the PI)
+    assert best_key(planned, k_planned)[1]["max_pct"] < kb["max_pct"]
 
 
 def test_q_filter_is_zero_phase():
@@ -221,8 +226,9 @@ def test_rig_run_learn_saves_a_record_that_a_later_run_uses(tmp_path):
                 "f.h5"], tmp_path)
     assert res.returncode == 0, res.stderr
     assert "trial  max error %  RMS error %" in res.stdout
-    assert "model-based (Newton-type, noise-aware)" in res.stdout   # the update used, and
-    assert "thesis single model" in res.stdout                      # each trial's model
+    # the update used, and each trial's model
+    assert "model-based (Newton-type, noise-aware, minimax plan)" in res.stdout
+    assert "thesis single model" in res.stdout
     saved = list((tmp_path / "data" / "learned").glob("forte-*.json"))
     assert len(saved) == 1
     rec = records.read(saved[0])
@@ -604,3 +610,123 @@ def test_no_release_with_one_mode_switch_reaches_2_percent_on_forte():
     assert 100 * min(errs) / p.peak == pytest.approx(2.536, abs=0.01)
     assert 100 * bound.fixed_modes(single, r, np.ones(n, bool), CFG.limits,
                                    HZ).max_error_n / p.peak < 0.85
+
+
+# ---- the minimax plan the learner takes when it beats the Newton step ----
+
+def _bell(n: int = 60, width: int = 30):
+    """A force pulse (20 N over ``width`` cycles, falling at up to 2.1 N per cycle), rest."""
+    j = np.arange(n)
+    return np.where(j < width, 10.0 * (1 - np.cos(2 * np.pi * j / width)), 0.0)
+
+
+def test_falling_runs_and_schedule():
+    from rig.control import bound
+
+    r = np.r_[0.0, 1, 2, 3, 2, 1, 1, 1, 2, 1, 0, 0, 0, 0, 0, 0]
+    # it falls at cycles 4-5 and 9-10; from lead cycles before to 2 lead after, [start, end)
+    assert bound.falling_runs(r, 0) == ((4, 6), (9, 11))
+    assert bound.falling_runs(r, 1) == ((3, 13),)          # they meet: one interval
+    assert bound.falling_runs(np.arange(5.0), 2) == ()
+    np.testing.assert_array_equal(bound.schedule(6, ((1, 3), (4, 5))),
+                                  [True, False, False, True, False, True])
+
+
+def test_planned_finds_the_best_single_fall_schedule_of_a_brute_force_scan():
+    # from the reference's fall and from two bad starts (falling too late and never rising
+    # again; falling too early and briefly), the coordinate search reaches the best
+    # schedule of a scan over one falling interval [a, c); that one brakes (rises again
+    # before the end: the fast rising model stops the slow falling one's swing), ~40 %
+    # below the best that does not
+    from rig.control import bound, plant
+
+    model = plant.thesis_models()[1]
+    r = _bell()
+    n = r.size
+    scan = {}
+    for a in range(9, 23, 2):
+        for c in range(a + 2, n + 1):
+            try:
+                scan[(a, c)] = bound.fixed_modes(model, r, bound.schedule(n, ((a, c),)),
+                                                 CFG.limits, HZ).max_error_n
+            except InputError:    # no demand plays it (a fall from 0)
+                continue
+    no_brake = min(v for (a, c), v in scan.items() if c == n)
+    assert min(scan.values()) < 0.7 * no_brake
+    for start in (bound.falling_runs(r, 4), ((21, n),), ((11, 17),)):
+        b = bound.planned(model, r, CFG.limits, HZ, start)
+        assert b.max_error_n <= min(scan.values()) * (1 + 1e-6)
+        assert b.falls[0][1] < n and b.programmes >= 2
+        np.testing.assert_array_equal(b.rising, bound.schedule(n, b.falls))
+
+
+def test_planned_with_smooth_stays_within_its_error_and_calms_the_demand():
+    from rig.control import bound, plant
+
+    model = plant.thesis_models()[0]
+    p, r, _ = grid("forte")
+    falls = bound.falling_runs(r, 4)
+    sharp = bound.planned(model, r, CFG.limits, HZ, falls)
+    calm = bound.planned(model, r, CFG.limits, HZ, falls, smooth=0.05)
+    assert calm.max_error_n <= 1.05 * sharp.max_error_n + 1e-4   # + the solver's tolerance
+    tv = [np.abs(np.diff(np.r_[0.0, b.demand])).sum() for b in (sharp, calm)]
+    assert tv[1] <= tv[0] + 1e-6
+    assert np.abs(r - np.maximum(model.simulate(calm.demand, HZ), 0)).mean() < \
+        np.abs(r - np.maximum(model.simulate(sharp.demand, HZ), 0)).mean()
+
+
+def test_settle_makes_rounding_level_changes_exact_holds():
+    from rig.control import plant
+
+    u = np.r_[0.0, 5.0, 10.0, 10.0 + 1e-15, 10.0, 10.0 - 4e-15, 10.0, 5.0, 0.0]
+    out = ilc.settle(u, 10.0)
+    np.testing.assert_array_equal(out, [0.0, 5.0, 10.0, 10.0, 10.0, 10.0, 10.0, 5.0, 0.0])
+    # the asymmetric drive's mode follows the last change however small: with u, the hold
+    # plays the falling model from cycle 5; settled, the rising one until the release
+    risefall = plant.thesis_models()[1]
+    assert not risefall.modes(u)[5] and risefall.modes(out)[5]
+    # a change that holding would push past the rate limit is kept
+    v = np.r_[0.0, 1e-12, 10.0 + 1e-12]
+    np.testing.assert_array_equal(ilc.settle(v, 10.0), v)
+    np.testing.assert_array_equal(ilc.settle(np.r_[0.0, 1e-3, 2.0], 10.0), [0.0, 1e-3, 2.0])
+
+
+def test_the_learner_takes_the_plan_only_where_it_beats_the_newton_step():
+    # asymmetric forte: the plan (the release falling, then braking) is taken and plays
+    # better than the Newton steps alone (minimax=False); with load-cell feedback in the
+    # loop it is not planned (the programmes model the open loop)
+    _, lrn, k_plan, _ = learn("forte", "asymmetric", trials=3)
+    _, newton, k_newton, _ = learn("forte", "asymmetric", trials=3, minimax=False)
+    assert any("minimax plan" in n for n in lrn.notes)
+    assert not any("minimax" in n for n in newton.notes)
+    h = [x for x in lrn.history if "planned_max_n" in x]
+    assert h and all(x["minimax"] == 1.0 for x in h)
+    assert max(x["max_pct"] for x in k_plan[1:]) < min(x["max_pct"] for x in k_newton[1:]) - 0.5
+    _, pi, _, _ = learn("forte", "asymmetric", trials=2, pi=True)
+    assert not any("minimax" in n for n in pi.notes)
+
+
+def test_the_noise_margin_is_two_sigma_of_the_difference_of_two_trials():
+    # two trials with the same error e and independent noise: their mean squares differ by
+    # more than _margin in ~2.3 % of pairs (one-sided 2 sigma), the error's cross term
+    # with the noise included (the noise's square alone would give ~0.4 sigma too little)
+    n, sigma = 300, 0.22
+    rng = np.random.default_rng(5)
+    e = 0.15 * np.sin(np.arange(n) / 7.0) * np.sqrt(2)      # RMS 0.15 N
+    lrn = ilc.Learner.start(np.ones(n), np.ones(n), ilc.LearningFilter.default(HZ, 0.008),
+                            CFG.limits, HZ, noise_n=sigma)
+    lrn.best = {"rms_n": float(np.sqrt(np.mean(e ** 2) + sigma ** 2))}
+    ms = np.mean((e[None, :] + sigma * rng.standard_normal((20000, n))) ** 2, axis=1)
+    d = ms[::2] - ms[1::2]
+    assert np.mean(d > lrn._margin()) == pytest.approx(0.0228, abs=0.004)
+
+
+def test_a_trial_that_replays_the_best_table_is_never_worse():
+    n = 300
+    lrn = ilc.Learner.start(np.ones(n), np.ones(n), ilc.LearningFilter.default(HZ, 0.008),
+                            CFG.limits, HZ, noise_n=0.22)
+    lrn.best, lrn.best_u = {"rms_n": 0.25}, lrn.u.copy()
+    assert not lrn._worse_than_best(5.0)          # the same table: only the noise differs
+    lrn.u = lrn.u * 1.01
+    assert lrn._worse_than_best(5.0)
+    assert not lrn._worse_than_best(0.26)         # within 3 sigma of the noise

@@ -11,6 +11,12 @@ decrease, else as before).
   linear programme (HiGHS). The mode constraints (an increase where rising, a decrease
   where falling; a switch needs a change of at least ``SWITCH_STEP_N`` in its
   direction) make the demand found play those modes exactly.
+* ``planned``: a local search over mode schedules that fall over intervals (each
+  release, found from the reference's falling runs, and where it brakes): the start
+  and end of each falling interval moved by a coordinate search, one ``fixed_modes``
+  programme per schedule tried (memoised). What the learner plans with (``rig.control.ilc``):
+  the schedules of a release that follows the profile or brakes once, the ones a real
+  drive's rise/fall identification supports, not the modes switched every cycle.
 * ``best_demand``: the modes free as well: a mixed-integer linear programme (the
   state at each cycle, each mode's transition bounded by big-M constraints on a
   binary per cycle), optionally with at most ``max_switches`` mode changes; solved to
@@ -24,11 +30,12 @@ so an error constraint's lower side applies only where r_j exceeds the error all
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, linprog, milp
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix, hstack, identity, vstack
 
 from rig.config import Limits
 from rig.control import plant
@@ -44,6 +51,8 @@ class Bound:
     rising: np.ndarray        # its modes (True: the rising model)
     dual_bound_n: float = 0.0  # no demand has a smaller maximum error (N)
     optimal: bool = True
+    falls: tuple[tuple[int, int], ...] = field(default=())   # planned's schedule
+    programmes: int = 0        # planned: the fixed-mode programmes solved
 
     @property
     def switches(self) -> int:
@@ -55,8 +64,13 @@ def _error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> 
 
 
 def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarray,
-                limits: Limits, control_hz: float) -> Bound:
-    """The minimax demand for the mode sequence ``rising`` (a linear programme)."""
+                limits: Limits, control_hz: float, *, smooth: float = 0.0) -> Bound:
+    """The minimax demand for the mode sequence ``rising`` (a linear programme).
+
+    ``smooth`` > 0: of the demands within (1 + smooth) x that maximum error, the one
+    with the least mean error and, within (1 + smooth) x that, the least total variation
+    (two more programmes): the minimax demand is not unique where the error is below
+    its maximum, and the solver's vertex can swing from limit to limit there."""
     r = np.asarray(reference, float)
     rising = np.asarray(rising, bool)
     n = r.size
@@ -69,6 +83,7 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
     two_modes = model.rise != model.fall
     prev = np.r_[True, rising[:-1]]
     sgn = np.where(rising, -1.0, 1.0)         # rising: -(d_j - d_{j-1}) <= -switch
+    switch = -np.where(rising != prev, SWITCH_STEP_N, 0.0)
 
     def lp(lower: np.ndarray) -> tuple[float, np.ndarray | None]:
         rows = [np.hstack([G, -one]), np.hstack([-G[lower], -one[lower]]),
@@ -76,13 +91,14 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
         rhs = [r, -r[lower], np.full(n, step), np.full(n, step)]
         if two_modes:
             rows.append(np.hstack([sgn[:, None] * D, z]))
-            rhs.append(-np.where(rising != prev, SWITCH_STEP_N, 0.0))
+            rhs.append(switch)
         res = linprog(np.r_[np.zeros(n), 1.0], A_ub=np.vstack(rows), b_ub=np.concatenate(rhs),
                       bounds=[(0.0, limits.max_force_n)] * n + [(0.0, None)], method="highs")
         return (float(res.x[-1]), res.x[:n]) if res.status == 0 else (np.inf, None)
 
     t = 0.0
     d: np.ndarray | None = None
+    lower = r > 1e-9
     for _ in range(20):   # the lower sides where r_j > t, t the bound: a fixed point
         lower = r > t + 1e-9
         t_new, d = lp(lower)
@@ -92,8 +108,51 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
         t = t_new
     if d is None:
         raise InputError("fixed_modes: no demand plays this mode sequence within the limits")
+    if smooth > 0:
+        calm = _calmest(G, r, lower, (1.0 + smooth) * t + 1e-9, smooth, step,
+                        switch if two_modes else None, sgn, limits.max_force_n)
+        d = d if calm is None else calm
     d = _clean(d, rising, limits, control_hz)
     return Bound(_error(model, r, d, control_hz), d, rising, t)
+
+
+def _calmest(G: np.ndarray, r: np.ndarray, lower: np.ndarray, allowed: float, smooth: float,
+             step: float, switch: np.ndarray | None, sgn: np.ndarray,
+             max_force: float) -> np.ndarray | None:
+    """Within error ``allowed`` everywhere: the least mean error, then (within 1 + smooth
+    of it) the least total variation sum |d_j - d_{j-1}|. Variables [d, a, s]: a_j >=
+    |error_j|, s_j >= |d_j - d_{j-1}|. None if the solver fails (the caller keeps its
+    minimax demand)."""
+    n = r.size
+    Gs = csr_matrix(G)
+    Gl = csr_matrix(G[lower])
+    Il = identity(n, format="csr")[lower]
+    Id = identity(n, format="csr")
+    D = csr_matrix(np.eye(n) - np.eye(n, k=-1))
+    Z = csr_matrix((n, n))
+    Zl = csr_matrix((int(lower.sum()), n))
+    rows = [hstack([Gs, Z, Z]), hstack([-Gl, Zl, Zl]),            # |error| <= allowed
+            hstack([Gs, -Id, Z]), hstack([-Gl, -Il, Zl]),          # a >= |error|
+            hstack([D, Z, -Id]), hstack([-D, Z, -Id]),              # s >= |diff|
+            hstack([D, Z, Z]), hstack([-D, Z, Z])]                # the rate limit
+    rhs = [r + allowed, -(r[lower] - allowed), r, -r[lower], np.zeros(n), np.zeros(n),
+           np.full(n, step), np.full(n, step)]
+    if switch is not None:
+        rows.append(hstack([csr_matrix(sgn[:, None] * D.toarray()), Z, Z]))
+        rhs.append(switch)
+    A = vstack(rows, format="csr")
+    b = np.concatenate(rhs)
+    bounds = [(0.0, max_force)] * n + [(0.0, None)] * (2 * n)
+    first = linprog(np.r_[np.zeros(n), np.ones(n), np.zeros(n)], A_ub=A, b_ub=b,
+                    bounds=bounds, method="highs")
+    if first.status != 0:
+        return None
+    mean_cap = (1.0 + smooth) * float(first.fun) + 1e-9
+    A2 = vstack([A, csr_matrix(np.r_[np.zeros(n), np.ones(n), np.zeros(n)][None, :])],
+                format="csr")
+    second = linprog(np.r_[np.zeros(2 * n), np.ones(n)], A_ub=A2, b_ub=np.r_[b, mean_cap],
+                     bounds=bounds, method="highs")
+    return np.asarray(second.x[:n]) if second.status == 0 else np.asarray(first.x[:n])
 
 
 def _clean(d: np.ndarray, rising: np.ndarray, limits: Limits, control_hz: float) -> np.ndarray:
@@ -105,6 +164,105 @@ def _clean(d: np.ndarray, rising: np.ndarray, limits: Limits, control_hz: float)
     small = np.abs(diff) < 0.1 * SWITCH_STEP_N
     diff[small & (rising == prev)] = 0.0
     return np.clip(np.cumsum(diff), 0.0, limits.max_force_n)
+
+
+def falling_runs(reference: np.ndarray, lead: int) -> tuple[tuple[int, int], ...]:
+    """Where a demand tracking ``reference`` plays the falling model: each run of cycles
+    over which the reference falls, from ``lead`` cycles before it (the drive lags) to
+    ``2 lead`` after it (the fall's tail), overlapping runs merged; [start, end) pairs."""
+    r = np.asarray(reference, float)
+    n = r.size
+    falls: list[list[int]] = []
+    j = 0
+    down = np.diff(r) < 0
+    while j < down.size:
+        if not down[j]:
+            j += 1
+            continue
+        k = j
+        while k < down.size and down[k]:
+            k += 1
+        a, b = max(j + 1 - lead, 1), min(k + 1 + 2 * lead, n)
+        if falls and a <= falls[-1][1]:
+            falls[-1][1] = max(falls[-1][1], b)
+        else:
+            falls.append([a, b])
+        j = k
+    return tuple((a, b) for a, b in falls)
+
+
+def schedule(n: int, falls: Sequence[tuple[int, int]]) -> np.ndarray:
+    """The mode sequence (True: rising) that falls over each [start, end) of ``falls``."""
+    rising = np.ones(n, bool)
+    for a, b in falls:
+        rising[a:b] = False
+    return rising
+
+
+def _neighbours(falls: tuple[tuple[int, int], ...], s: int, n: int
+                ) -> list[tuple[tuple[int, int], ...]]:
+    """The schedules with one end of one falling interval moved by s cycles, and with an
+    interval run on to the next one (no rise between them) or to the end (no brake)."""
+    out = []
+    for i, (a, b) in enumerate(falls):
+        lo = falls[i - 1][1] + 1 if i else 1
+        hi = falls[i + 1][0] - 1 if i + 1 < len(falls) else n
+        for na, nb in ((a - s, b), (a + s, b), (a, b - s), (a, b + s)):
+            if lo <= na < nb <= hi:
+                out.append(falls[:i] + ((na, nb),) + falls[i + 1:])
+        if i + 1 < len(falls):
+            out.append(falls[:i] + ((a, falls[i + 1][1]),) + falls[i + 2:])
+        elif b < n:
+            out.append(falls[:i] + ((a, n),))
+    return out
+
+
+def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, control_hz: float,
+            start: Sequence[tuple[int, int]], *, steps: Sequence[int] = (8, 4, 2, 1),
+            smooth: float = 0.0) -> Bound:
+    """The best demand over the schedules near ``start`` (falling over each [start, end),
+    rising elsewhere): a coordinate search moving one end of one interval by each of
+    ``steps`` in turn (first improvement; a schedule no demand plays counts as infinite
+    error), one ``fixed_modes`` programme per schedule, memoised; the best schedule's
+    demand made calm by ``smooth`` (``fixed_modes``). A local optimum: ``best_demand``
+    is the global one, at minutes per profile."""
+    r = np.asarray(reference, float)
+    n = r.size
+    memo: dict[tuple[tuple[int, int], ...], float] = {}
+    bounds: dict[tuple[tuple[int, int], ...], Bound] = {}
+
+    def cost(falls: tuple[tuple[int, int], ...]) -> float:
+        if falls not in memo:
+            try:
+                b = fixed_modes(model, r, schedule(n, falls), limits, control_hz)
+            except InputError:
+                memo[falls] = np.inf
+            else:
+                memo[falls], bounds[falls] = b.max_error_n, b
+        return memo[falls]
+
+    best = tuple((int(a), int(b)) for a, b in start)
+    if not all(1 <= a < b <= n for a, b in best):
+        raise InputError(f"planned: falling intervals outside 1..{n}: {best}")
+    if model.rise == model.fall:
+        steps = ()          # one model: every schedule is the same programme
+    c_best = cost(best)
+    for s in steps:
+        improved = True
+        while improved:
+            improved = False
+            for cand in _neighbours(best, int(s), n):
+                c = cost(cand)
+                if c < c_best * (1.0 - 1e-9):
+                    best, c_best, improved = cand, c, True
+                    break
+    if not np.isfinite(c_best):
+        raise InputError("planned: no demand plays any schedule tried within the limits")
+    out = bounds[best]
+    if smooth > 0:
+        out = fixed_modes(model, r, schedule(n, best), limits, control_hz, smooth=smooth)
+    return Bound(out.max_error_n, out.demand, out.rising, out.dual_bound_n, False, best,
+                 len(memo) + (smooth > 0))
 
 
 def best_demand(model: plant.DriveModel, reference: np.ndarray, limits: Limits,

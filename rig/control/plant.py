@@ -29,6 +29,7 @@ G's columns zeroed where the limiter clipped the demand);
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -87,6 +88,15 @@ class DriveModel:
     name: str
     rise: ProcessModel
     fall: ProcessModel
+
+    def scaled(self, gain: float) -> DriveModel:
+        """The same drive with both models' K multiplied by ``gain``."""
+        if gain == 1.0:
+            return self
+        rise = dataclasses.replace(self.rise, K=self.rise.K * gain)
+        fall = rise if self.fall == self.rise else dataclasses.replace(self.fall,
+                                                                      K=self.fall.K * gain)
+        return DriveModel(self.name, rise, fall)
 
     def modes(self, d: np.ndarray) -> np.ndarray:
         """True where cycle j's demand is played with the rising model."""

@@ -99,10 +99,14 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     # rise/fall models; each trial picks the one that explains it best, gain re-estimated
     models = tuple(m for m in [plant.from_motor_record(motor) if motor else None,
                                *plant.thesis_models()] if m is not None)
-    controller = run_svc.load_controller(cfg.loop.controller)   # the learner's own copy
+    # the learner's own copy of the loop's controller (none for open_loop: the feedforward
+    # is the demand, and the learner may plan it, ilc.Learner.plans)
+    controller = (None if cfg.loop.controller == "open_loop"
+                  else run_svc.load_controller(cfg.loop.controller))
     learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise,
                                 models=models, controller=controller, step=factor)
-    method = ("model-based (Newton-type, noise-aware)" if learner.model_based
+    method = ("model-based (Newton-type, noise-aware"
+              + (", minimax plan" if learner.plans else "") + ")" if learner.model_based
               else f"P-type (more than {ilc.MAX_MODEL_POINTS} cycles)")
     filt_meta = {"method": method, "models": [m.name for m in models],
                  "controller": cfg.loop.controller, "step": factor,
