@@ -59,7 +59,8 @@ class Bound:
         return int(np.sum(self.rising[1:] != self.rising[:-1]) + (not self.rising[0]))
 
 
-def _error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> float:
+def key_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> float:
+    """max_j |r_j - max(y_j, 0)|: the key force's largest error for demand ``d`` (N)."""
     return float(np.abs(r - np.maximum(model.simulate(d, hz), 0.0)).max())
 
 
@@ -98,7 +99,6 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
 
     t = 0.0
     d: np.ndarray | None = None
-    lower = r > 1e-9
     for _ in range(20):   # the lower sides where r_j > t, t the bound: a fixed point
         lower = r > t + 1e-9
         t_new, d = lp(lower)
@@ -113,7 +113,7 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
                         switch if two_modes else None, sgn, limits.max_force_n)
         d = d if calm is None else calm
     d = _clean(d, rising, limits, control_hz)
-    return Bound(_error(model, r, d, control_hz), d, rising, t)
+    return Bound(key_error(model, r, d, control_hz), d, rising, t)
 
 
 def _calmest(G: np.ndarray, r: np.ndarray, lower: np.ndarray, allowed: float, smooth: float,
@@ -138,7 +138,7 @@ def _calmest(G: np.ndarray, r: np.ndarray, lower: np.ndarray, allowed: float, sm
     rhs = [r + allowed, -(r[lower] - allowed), r, -r[lower], np.zeros(n), np.zeros(n),
            np.full(n, step), np.full(n, step)]
     if switch is not None:
-        rows.append(hstack([csr_matrix(sgn[:, None] * D.toarray()), Z, Z]))
+        rows.append(hstack([D.multiply(sgn[:, None]), Z, Z]))
         rhs.append(switch)
     A = vstack(rows, format="csr")
     b = np.concatenate(rhs)
@@ -228,18 +228,16 @@ def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, cont
     is the global one, at minutes per profile."""
     r = np.asarray(reference, float)
     n = r.size
-    memo: dict[tuple[tuple[int, int], ...], float] = {}
-    bounds: dict[tuple[tuple[int, int], ...], Bound] = {}
+    solved: dict[tuple[tuple[int, int], ...], Bound | None] = {}   # None: no demand plays it
 
     def cost(falls: tuple[tuple[int, int], ...]) -> float:
-        if falls not in memo:
+        if falls not in solved:
             try:
-                b = fixed_modes(model, r, schedule(n, falls), limits, control_hz)
+                solved[falls] = fixed_modes(model, r, schedule(n, falls), limits, control_hz)
             except InputError:
-                memo[falls] = np.inf
-            else:
-                memo[falls], bounds[falls] = b.max_error_n, b
-        return memo[falls]
+                solved[falls] = None
+        b = solved[falls]
+        return np.inf if b is None else b.max_error_n
 
     best = tuple((int(a), int(b)) for a, b in start)
     if not all(1 <= a < b <= n for a, b in best):
@@ -258,11 +256,12 @@ def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, cont
                     break
     if not np.isfinite(c_best):
         raise InputError("planned: no demand plays any schedule tried within the limits")
-    out = bounds[best]
+    out = solved[best]
+    assert out is not None
     if smooth > 0:
         out = fixed_modes(model, r, schedule(n, best), limits, control_hz, smooth=smooth)
     return Bound(out.max_error_n, out.demand, out.rising, out.dual_bound_n, False, best,
-                 len(memo) + (smooth > 0))
+                 len(solved) + (smooth > 0))
 
 
 def best_demand(model: plant.DriveModel, reference: np.ndarray, limits: Limits,
@@ -359,5 +358,5 @@ def best_demand(model: plant.DriveModel, reference: np.ndarray, limits: Limits,
     rising = np.round(res.x[nx + n: nx + 2 * n]).astype(bool)
     d = _clean(res.x[nx: nx + n], rising, limits, control_hz)
     dual = float(getattr(res, "mip_dual_bound", 0.0) or 0.0)
-    return Bound(_error(model, r, d, control_hz), d, model.modes(d), max(dual, 0.0),
+    return Bound(key_error(model, r, d, control_hz), d, model.modes(d), max(dual, 0.0),
                  res.status == 0)

@@ -496,8 +496,7 @@ class Learner:
         du, _ = noise_aware_step(T0, self.reference - z, nv, tau)
         target = self.reference - T0 @ du
         first = self._falls is None
-        start = (bound.falling_runs(self.reference, self.filt.lead) if self._falls is None
-                 else self._falls)
+        start = bound.falling_runs(self.reference, self.filt.lead) if first else self._falls
         if not start:
             start = ((n - 1, n),)
         try:
@@ -505,7 +504,7 @@ class Learner:
                               steps=PLAN_STEPS[0 if first else 1], smooth=PLAN_SMOOTH)
         except InputError:
             return None
-        step_max = float(np.abs(target - np.maximum(model.simulate(u_step, hz), 0.0)).max())
+        step_max = bound.key_error(model, target, u_step, hz)
         err["planned_max_n"] = b.max_error_n
         err["minimax"] = 0.0
         if not b.max_error_n < step_max * (1.0 - 1e-3):
