@@ -13,10 +13,12 @@ decrease, else as before).
   direction) make the demand found play those modes exactly.
 * ``planned``: a local search over mode schedules that fall over intervals (each
   release, found from the reference's falling runs, and where it brakes): the start
-  and end of each falling interval moved by a coordinate search, one ``fixed_modes``
-  programme per schedule tried (memoised). What the learner plans with (``rig.control.ilc``):
-  the schedules of a release that follows the profile or brakes once, the ones a real
-  drive's rise/fall identification supports, not the modes switched every cycle.
+  and end of each falling interval moved by a coordinate search, an interval cut in
+  two by a rise (up to ``max_falls`` intervals), one ``fixed_modes`` programme per
+  schedule tried (memoised). What the learner plans with (``rig.control.ilc``):
+  releases that follow the profile or brake on their way down and at their end (at
+  most twice as many falling intervals as the profile has releases, each switch a
+  reversal of ``switch_n``), not the modes switched every cycle.
 * ``best_demand``: the modes free as well: a mixed-integer linear programme (the
   state at each cycle, each mode's transition bounded by big-M constraints on a
   binary per cycle), optionally with at most ``max_switches`` mode changes; solved to
@@ -65,8 +67,10 @@ def key_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) 
 
 
 def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarray,
-                limits: Limits, control_hz: float, *, smooth: float = 0.0) -> Bound:
-    """The minimax demand for the mode sequence ``rising`` (a linear programme).
+                limits: Limits, control_hz: float, *, smooth: float = 0.0,
+                switch_n: float = SWITCH_STEP_N) -> Bound:
+    """The minimax demand for the mode sequence ``rising`` (a linear programme); each
+    switch of the modes a change of the demand of at least ``switch_n`` in its direction.
 
     ``smooth`` > 0: of the demands within (1 + smooth) x that maximum error, the one
     with the least mean error and, within (1 + smooth) x that, the least total variation
@@ -84,7 +88,7 @@ def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarr
     two_modes = model.rise != model.fall
     prev = np.r_[True, rising[:-1]]
     sgn = np.where(rising, -1.0, 1.0)         # rising: -(d_j - d_{j-1}) <= -switch
-    switch = -np.where(rising != prev, SWITCH_STEP_N, 0.0)
+    switch = -np.where(rising != prev, switch_n, 0.0)
 
     def lp(lower: np.ndarray) -> tuple[float, np.ndarray | None]:
         rows = [np.hstack([G, -one]), np.hstack([-G[lower], -one[lower]]),
@@ -199,12 +203,17 @@ def schedule(n: int, falls: Sequence[tuple[int, int]]) -> np.ndarray:
     return rising
 
 
-def _neighbours(falls: tuple[tuple[int, int], ...], s: int, n: int
+def _neighbours(falls: tuple[tuple[int, int], ...], s: int, n: int, split: bool = False
                 ) -> list[tuple[tuple[int, int], ...]]:
     """The schedules with one end of one falling interval moved by s cycles, and with an
-    interval run on to the next one (no rise between them) or to the end (no brake)."""
-    out = []
+    interval run on to the next one (no rise between them) or to the end (no brake);
+    ``split``: also each interval cut by a one-cycle rise every s cycles inside it (a
+    release that brakes on its way down)."""
+    out: list[tuple[tuple[int, int], ...]] = []
     for i, (a, b) in enumerate(falls):
+        if split:
+            out.extend(falls[:i] + ((a, m), (m + 1, b)) + falls[i + 1:]
+                       for m in range(a + s, b - s, s))
         lo = falls[i - 1][1] + 1 if i else 1
         hi = falls[i + 1][0] - 1 if i + 1 < len(falls) else n
         for na, nb in ((a - s, b), (a + s, b), (a, b - s), (a, b + s)):
@@ -219,13 +228,15 @@ def _neighbours(falls: tuple[tuple[int, int], ...], s: int, n: int
 
 def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, control_hz: float,
             start: Sequence[tuple[int, int]], *, steps: Sequence[int] = (8, 4, 2, 1),
-            smooth: float = 0.0) -> Bound:
+            smooth: float = 0.0, max_falls: int = 0, switch_n: float = SWITCH_STEP_N) -> Bound:
     """The best demand over the schedules near ``start`` (falling over each [start, end),
     rising elsewhere): a coordinate search moving one end of one interval by each of
     ``steps`` in turn (first improvement; a schedule no demand plays counts as infinite
-    error), one ``fixed_modes`` programme per schedule, memoised; the best schedule's
-    demand made calm by ``smooth`` (``fixed_modes``). A local optimum: ``best_demand``
-    is the global one, at minutes per profile."""
+    error); with fewer than ``max_falls`` intervals and moves of 8 cycles or more, also
+    each interval cut by a rise (``_neighbours``); every mode switch a demand change of
+    at least ``switch_n``; one ``fixed_modes`` programme per schedule, memoised; the best
+    schedule's demand made calm by ``smooth`` (``fixed_modes``). A local optimum:
+    ``best_demand`` is the global one, at minutes per profile."""
     r = np.asarray(reference, float)
     n = r.size
     solved: dict[tuple[tuple[int, int], ...], Bound | None] = {}   # None: no demand plays it
@@ -233,7 +244,8 @@ def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, cont
     def cost(falls: tuple[tuple[int, int], ...]) -> float:
         if falls not in solved:
             try:
-                solved[falls] = fixed_modes(model, r, schedule(n, falls), limits, control_hz)
+                solved[falls] = fixed_modes(model, r, schedule(n, falls), limits, control_hz,
+                                            switch_n=switch_n)
             except InputError:
                 solved[falls] = None
         b = solved[falls]
@@ -249,7 +261,7 @@ def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, cont
         improved = True
         while improved:
             improved = False
-            for cand in _neighbours(best, int(s), n):
+            for cand in _neighbours(best, int(s), n, split=len(best) < max_falls and s >= 8):
                 c = cost(cand)
                 if c < c_best * (1.0 - 1e-9):
                     best, c_best, improved = cand, c, True
@@ -259,7 +271,8 @@ def planned(model: plant.DriveModel, reference: np.ndarray, limits: Limits, cont
     out = solved[best]
     assert out is not None
     if smooth > 0:
-        out = fixed_modes(model, r, schedule(n, best), limits, control_hz, smooth=smooth)
+        out = fixed_modes(model, r, schedule(n, best), limits, control_hz, smooth=smooth,
+                          switch_n=switch_n)
     return Bound(out.max_error_n, out.demand, out.rising, out.dual_bound_n, False, best,
                  len(solved) + (smooth > 0))
 

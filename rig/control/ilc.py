@@ -29,8 +29,11 @@ The update (``Learner``, model-based; issue 18):
   the linearisation assumed, so they do not move a mode switch. For a given mode
   schedule the demand with the smallest maximum error is a linear programme
   (``rig.control.bound.fixed_modes``); ``bound.planned`` searches the schedules that
-  fall over each release of the profile (and may rise again to brake it). Its target
-  is the profile minus what the model missed in the trial (fitted down to the noise),
+  fall over each release of the profile and may rise again to brake it, on its way
+  down and at its end (up to ``PLAN_BRAKES`` falling intervals per release of the
+  profile in all, each switch a reversal of at least ``PLAN_SWITCH_N``: ~3 steps of
+  the 16-bit output at the default scaling, not a change below what it writes). Its
+  target is the profile minus what the model missed in the trial (fitted down to the noise),
   its model the fitted one at the next trial's gain. The plan is played when the model
   predicts a smaller maximum error for it than for the Newton step's table.
 * Noise-aware: lam by the discrepancy principle (``noise_aware_step``): the update fits
@@ -53,7 +56,9 @@ The update (``Learner``, model-based; issue 18):
   within the noise of it replaces it, ``_as_good_as_best``) and stops
   (``Learner.stopped``) when a trial's RMS error exceeds the best's by ``grow_factor``
   (default 1.5), or when two trials are worse than the best by more than the noise
-  explains (``_worse_than_best``).
+  explains (``_worse_than_best``) and have no smaller maximum error (the minimax plan
+  trades mean error for maximum error: a trial it lowered the maximum in is not
+  diverging).
 
 SI units throughout: forces N, times s.
 """
@@ -80,6 +85,8 @@ IDENTIFY_ABOVE_NOISE = 1.2     # identify the model's dynamics when its residual
 MINIMAX_MAX_POINTS = 1000      # longer tables are not planned (a programme per schedule tried)
 PLAN_SMOOTH = 0.05             # the plan's demand: the calmest within 1.05 x its maximum error
 PLAN_STEPS = ((8, 4, 2, 1), (2, 1))   # the schedule search's moves: first plan, later ones
+PLAN_BRAKES = 2                # the first plan's falling intervals per release (in all)
+PLAN_SWITCH_N = 0.01           # the plan's mode switches: demand reversals >= this (N)
 HOLD_BELOW_N = 1e-9            # smaller demand changes are exact holds (``settle``)
 
 
@@ -334,7 +341,7 @@ class Learner:
         if self.best is None or self._as_good_as_best(err["rms_n"]):
             self.best, self.best_u, self._worse = err, self.u.copy(), 0
         else:
-            if self._worse_than_best(err["rms_n"]):
+            if self._worse_than_best(err["rms_n"]) and err["max_n"] >= self.best["max_n"]:
                 self._worse += 1
             if err["rms_n"] > self.grow_factor * self.best["rms_n"] or self._worse >= 2:
                 self.stopped = (f"the error grew (trial {int(err['trial'])}: RMS "
@@ -487,8 +494,11 @@ class Learner:
         plan neither learns the noise nor takes the model's error for the drive's. The
         schedules searched: the profile's falls (``bound.falling_runs``, from ``lead``
         cycles before) the first time, the last plan's schedule after, moved by 8, 4, 2,
-        1 cycles, then 2, 1 (``PLAN_STEPS``). Not with a controller in the loop (the
-        programmes model the open loop) or more than ``MINIMAX_MAX_POINTS`` cycles."""
+        1 cycles, then 2, 1 (``PLAN_STEPS``); the first time a fall may also be cut in two
+        by a rise (a release that brakes on its way down; up to ``PLAN_BRAKES`` falls per
+        release in all), every switch a reversal of at least ``PLAN_SWITCH_N``. Not with a
+        controller in the loop (the programmes model the open loop) or more than
+        ``MINIMAX_MAX_POINTS`` cycles."""
         n = z.size
         if not self.plans:
             return None
@@ -501,7 +511,8 @@ class Learner:
             start = ((n - 1, n),)
         try:
             b = bound.planned(model, target, self.limits, hz, start,
-                              steps=PLAN_STEPS[0 if first else 1], smooth=PLAN_SMOOTH)
+                              steps=PLAN_STEPS[0 if first else 1], smooth=PLAN_SMOOTH,
+                              max_falls=PLAN_BRAKES * len(start), switch_n=PLAN_SWITCH_N)
         except InputError:
             return None
         step_max = bound.key_error(model, target, u_step, hz)
