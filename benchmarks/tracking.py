@@ -87,7 +87,7 @@ def case(name: str, variant: str, trials: int, seed: int, *, pi: bool = False,
         res = play(lrn.u, k)
         limited += res.limited if not pi else 0
         keys.append(ilc.errors(r, res.key_force, p.peak))
-        m = lrn.update(res.measured, res.demand)
+        m = lrn.update(res.measured, res.demand, res.lateness)
         print(f"  ILC trial {k + 1:<4d} {fmt(m, keys[-1])}  {lrn.notes[-1]}")
         if lrn.stopped:
             print(f"  stopped: {lrn.stopped}")

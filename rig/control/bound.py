@@ -66,6 +66,31 @@ def key_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) 
     return float(np.abs(r - np.maximum(model.simulate(d, hz), 0.0)).max())
 
 
+def timing_spread(model: plant.DriveModel, d: np.ndarray, hz: float, jitter_s: float
+                  ) -> np.ndarray:
+    """The standard deviation of the force at each cycle (N) when each write of demand
+    ``d`` comes at a time that varies by ``jitter_s`` (its standard deviation, s,
+    independent from cycle to cycle): a write late by delta holds the previous demand
+    delta longer, a pulse of -(d_k - d_{k-1}) over delta, whose response is about
+    (delta hz) times the lifted model's column k (the response to one cycle's demand);
+    so s_j^2 = (jitter_s hz)^2 sum_k G_jk^2 (d_k - d_{k-1})^2."""
+    d = np.asarray(d, float)
+    G = model.lifted(model.modes(d), hz)
+    step = np.diff(np.r_[0.0, d])
+    return jitter_s * hz * np.sqrt((G ** 2) @ (step ** 2))
+
+
+def timed_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float,
+                jitter_s: float) -> float:
+    """``key_error`` with the writes' timing: max_j |r_j - max(y_j, 0)| + 3 s_j (N), s
+    from ``timing_spread`` (3 sigma: what the timing reaches at a cycle in about one
+    trial of several hundred). Equal to ``key_error`` for exact timing."""
+    e = np.abs(np.asarray(r, float) - np.maximum(model.simulate(d, hz), 0.0))
+    if jitter_s > 0:
+        e = e + 3.0 * timing_spread(model, d, hz, jitter_s)
+    return float(e.max())
+
+
 def fixed_modes(model: plant.DriveModel, reference: np.ndarray, rising: np.ndarray,
                 limits: Limits, control_hz: float, *, smooth: float = 0.0,
                 switch_n: float = SWITCH_STEP_N) -> Bound:

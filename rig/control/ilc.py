@@ -35,7 +35,9 @@ The update (``Learner``, model-based; issue 18):
   the 16-bit output at the default scaling, not a change below what it writes). Its
   target is the profile minus what the model missed in the trial (fitted down to the noise),
   its model the fitted one at the next trial's gain. The plan is played when the model
-  predicts a smaller maximum error for it than for the Newton step's table.
+  predicts a smaller maximum error for it than for the Newton step's table, both with
+  what the loop's write jitter adds (``bound.timed_error``; ``jitter_s`` from the
+  trials' lateness): a sharp plan moves most when the writes come late.
 * Noise-aware: lam by the discrepancy principle (``noise_aware_step``): the update fits
   the error only down to what the load cell's noise explains (n sigma^2 times 1 + 2
   standard deviations of its chi-square), so noise is not learned into the table; an
@@ -264,7 +266,8 @@ class Learner:
     single and rise/fall models; an empty tuple: the P-type update ``filt``);
     ``controller``: the loop's controller, if it has ``lifted(n)`` (its linear map,
     F and C with d = F u - C y), the update inverts the closed loop; ``step``: the
-    fraction of the model-based update taken.
+    fraction of the model-based update taken; ``jitter_s``: the standard deviation of
+    the loop's write times (s), from each trial's lateness when ``update`` gets it.
     """
 
     reference: np.ndarray
@@ -280,6 +283,7 @@ class Learner:
     step: float = 1.0
     identify: bool = True
     minimax: bool = True
+    jitter_s: float = 0.0
     history: list[dict[str, float]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     best_u: np.ndarray | None = None
@@ -324,9 +328,13 @@ class Learner:
         return (self.minimax and self.model_based and self.controller is None
                 and self.reference.size <= MINIMAX_MAX_POINTS)
 
-    def update(self, measured: np.ndarray, demand: np.ndarray | None = None
-               ) -> dict[str, float]:
+    def update(self, measured: np.ndarray, demand: np.ndarray | None = None,
+               lateness: np.ndarray | None = None) -> dict[str, float]:
         """Learn from the trial just played with ``self.u``; its errors (with ``trial``).
+
+        ``lateness``: each cycle's time from its tick to the loop's wake-up (s; the run
+        file's ``commands/lateness``); its standard deviation becomes ``jitter_s``, which
+        the choice between the plan and the Newton step weighs (``bound.timed_error``).
 
         ``demand``: what the loop wrote at each cycle (the table, unless a controller
         or the limiter changed it); the model-based update linearises the drive there.
@@ -335,6 +343,10 @@ class Learner:
         if y.shape != self.reference.shape:
             raise InputError(f"measured force: expected {self.reference.shape[0]} points, got "
                              f"{y.shape[0]}")
+        if lateness is not None:
+            late = np.asarray(lateness, float)
+            late = late[np.isfinite(late)]
+            self.jitter_s = float(np.std(late)) if late.size > 1 else 0.0
         err = errors(self.reference, y, self.peak)
         err["trial"] = float(len(self.history) + 1)
         self.history.append(err)
@@ -515,18 +527,21 @@ class Learner:
                               max_falls=PLAN_BRAKES * len(start), switch_n=PLAN_SWITCH_N)
         except InputError:
             return None
-        step_max = bound.key_error(model, target, u_step, hz)
-        err["planned_max_n"] = b.max_error_n
+        plan_max = bound.timed_error(model, target, b.demand, hz, self.jitter_s)
+        step_max = bound.timed_error(model, target, u_step, hz, self.jitter_s)
+        err["planned_max_n"] = plan_max
         err["minimax"] = 0.0
-        if not b.max_error_n < step_max * (1.0 - 1e-3):
+        if not plan_max < step_max * (1.0 - 1e-3):
             return None
         err["minimax"] = 1.0
         self._falls = b.falls
         u = limit_table(u0 + self.step * (b.demand - u0), self.limits, 1.0 / hz)
         where = (f"falling over cycles {', '.join(f'{a}-{c - 1}' for a, c in b.falls)}; "
                  if model.rise != model.fall else "")
-        return u, (f"minimax plan ({where}model max {b.max_error_n:.3f} N against "
-                   f"{step_max:.3f} N for the Newton step, {b.programmes} programme"
+        timing = (f" with the writes' timing ({1e3 * self.jitter_s:.2f} ms)"
+                  if self.jitter_s > 0 else "")
+        return u, (f"minimax plan ({where}model max {plan_max:.3f} N against "
+                   f"{step_max:.3f} N for the Newton step{timing}, {b.programmes} programme"
                    f"{'s' if b.programmes > 1 else ''})")
 
     def _predicted_gain(self, f: plant.Fit) -> float:

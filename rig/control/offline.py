@@ -27,6 +27,7 @@ class TrialResult:
     key_force: np.ndarray  # N, the true force on the key at each tick
     demand: np.ndarray     # N, the limited demand written at each tick
     limited: int           # ticks where motor_torque.Limiter acted
+    lateness: np.ndarray   # s, how late each write came (0..jitter_s), as the loop records
 
 
 def play(u: np.ndarray, *, variant: str = "single", control_hz: float = 500.0,
@@ -68,4 +69,4 @@ def play(u: np.ndarray, *, variant: str = "single", control_hz: float = 500.0,
         last, hit = lim(float(ff))
         limited += int(hit)
         demand[j] = last
-    return TrialResult(measured, key, demand, limited)
+    return TrialResult(measured, key, demand, limited, delay / sample_hz)

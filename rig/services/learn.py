@@ -138,7 +138,8 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
                 stopped = f"trial {k + 1} {rep.status}; kept what was learned before it"
                 break
             err = learner.update(measured_force(rep.path, t.size),
-                                 measured_force(rep.path, t.size, "demand"))
+                                 measured_force(rep.path, t.size, "demand"),
+                                 measured_force(rep.path, t.size, "lateness"))
             say(table([f"{k + 1:5d}", f"{err['max_pct']:11.2f}", f"{err['rms_pct']:11.2f}",
                        str(rep.path)]))
             say(f"       {learner.notes[-1]}")
