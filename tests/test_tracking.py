@@ -595,6 +595,62 @@ def test_rig_runs_loop_gives_a_controller_the_profile_as_target(tmp_path):
         assert v == pytest.approx(p.at(t))
 
 
+def test_the_pi_is_designed_from_the_motor_calibration_in_use():
+    # K = the record's sensitivity, dead time = its lag + one cycle, lead = the lag in
+    # cycles; without a record, the thesis's model at the run's rate
+    pi = feedback.LoadCellPI()
+    rec = {"fit": {"sensitivity": 0.8, "lag_s": 0.012}, "content_hash": "sha256:abc"}
+    pi.design_from(rec, 500.0, 45.0)
+    wc = 1.0 / (4.0 * 0.014)
+    assert pi.kp == pytest.approx(0.2 / 0.8) and pi.ki == pytest.approx(wc / 0.8)
+    assert pi.lead == 6 and pi.max_force_n == 45.0
+    assert pi.design["source"] == "motor calibration sha256:abc"
+    pi.design_from(None, 1000.0, 50.0)
+    assert pi.kp == pytest.approx(0.2 / ilc.DEFAULT_GAIN_K) and pi.lead == 8
+    assert pi.ki == pytest.approx(25.0 / ilc.DEFAULT_GAIN_K) and pi.dt == 0.001
+    assert pi.design["source"].startswith("thesis single model")
+
+
+@pytest.mark.slow
+def test_rig_run_designs_its_pi_from_the_motor_calibration_and_records_it(tmp_path,
+                                                                          monkeypatch):
+    from rig import runfile
+    from rig.calibration import records as cal_records
+    from rig.services import calibrate as cal_svc
+    from rig.services import learn as learn_svc
+    from rig.services import run as run_svc
+
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"},
+                               "sim": {"realtime": False, "seed": 4},
+                               "loop": {"rest_s": 0.05, "settle_s": 0.05,
+                                        "controller": "rig.control.feedback:LoadCellPI"},
+                               "data_folder": str(tmp_path)})
+    forte = Path("profiles/forte.yaml")
+    before = run_svc.run(forte, cfg, out=tmp_path / "before.h5", lockstep=True)
+    meta = runfile.read(before.path).metadata["run"]
+    assert meta["controller"] == "load_cell_pi"
+    assert meta["controller_design"]["source"].startswith("thesis single model")
+    result, path, _ = cal_svc.calibrate_motor(cfg)
+    after = run_svc.run(forte, cfg, out=tmp_path / "after.h5", lockstep=True)
+    design = runfile.read(after.path).metadata["run"]["controller_design"]
+    rec_hash = cal_records.read(path)["content_hash"]
+    assert design["source"] == f"motor calibration {rec_hash}"
+    assert design["gain_k"] == pytest.approx(result.fit["sensitivity"])
+    assert design["dead_time_s"] == pytest.approx(result.fit["lag_s"] + 0.002)
+    assert design["kp"] == pytest.approx(0.2 / result.fit["sensitivity"])
+    # --learn designs the learner's copy of the PI (its lifted form) the same way
+    seen = []
+    real = feedback.LoadCellPI.design_from
+
+    def spy(self, rec, hz, max_force):
+        seen.append(None if rec is None else rec["content_hash"])
+        return real(self, rec, hz, max_force)
+
+    monkeypatch.setattr(feedback.LoadCellPI, "design_from", spy)
+    learn_svc.learn(forte, cfg, 1, out=tmp_path / "l.h5", lockstep=True)
+    assert len(seen) >= 2 and set(seen) == {rec_hash}   # the learner's copy and the loop's
+
+
 def test_a_nearly_noise_free_load_cell_does_not_make_the_rise_fall_inversion_chatter():
     # with almost no noise the discrepancy principle allows an almost exact inverse; the
     # Levenberg-Marquardt damping keeps each step where the rise/fall modes it assumed

@@ -12,19 +12,23 @@ the load cell with the profile, not with the learned table (which differs from t
 profile by design): the PI then only corrects what the table did not learn, and the
 learning (rig.control.ilc) inverts the closed loop (``lifted``).
 
-Design from the identified drive model (Eq. D.1, thesis single model, K = 0.9322
-N/N, ~8 ms lag incl. the load cell's filter): the loop's dead time is the lag plus
-one 2 ms cycle, ~10 ms. An integral crossover at wc = 1 / (4 x 10 ms) = 25 rad/s
-(4 Hz) keeps >= 60 deg phase margin against that dead time: Ki = wc / K;
-Kp = 0.2 / K keeps the proportional loop gain far below the 1 / (K x lag x wc)
-where the lag would make it ring. Anti-windup: the integral stops growing while the
-demand would leave [0, limits.max_force_n] (conditional integration) and is clamped
-to +-``integral_limit_n``; the loop's motor_torque.Limiter still applies after it.
+Design from the identified drive model: the motor calibration record's (``rig
+calibrate motor``: K its ``sensitivity``, its ``lag_s``) when the run uses one
+(``design_from``, called by ``rig run`` and ``--learn``), else the thesis's (Eq.
+D.1, single model, K = 0.9322 N/N, ~8 ms lag incl. the load cell's filter): the
+loop's dead time is the lag plus one cycle (2 ms), ~10 ms. An integral crossover
+at wc = 1 / (4 x 10 ms) = 25 rad/s (4 Hz) keeps >= 60 deg phase margin against
+that dead time: Ki = wc / K; Kp = 0.2 / K keeps the proportional loop gain far
+below the 1 / (K x lag x wc) where the lag would make it ring. Anti-windup: the
+integral stops growing while the demand would leave [0, limits.max_force_n]
+(conditional integration) and is clamped to +-``integral_limit_n``; the loop's
+motor_torque.Limiter still applies after it.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +44,15 @@ class LoadCellPI:
     def __init__(self, gain_k: float = DEFAULT_GAIN_K, dead_time_s: float = 0.010,
                  control_hz: float = 500.0, lead: int = 4, max_force_n: float = 60.0,
                  integral_limit_n: float = 5.0) -> None:
+        self.integral_limit_n = integral_limit_n
+        self.target_n: float | None = None   # the profile now, set by the loop each cycle
+        self._design(gain_k, dead_time_s, control_hz, lead, max_force_n,
+                     "thesis single model (Eq. D.1), 10 ms dead time"
+                     if (gain_k, dead_time_s) == (DEFAULT_GAIN_K, 0.010) else "given")
+        self.reset()
+
+    def _design(self, gain_k: float, dead_time_s: float, control_hz: float, lead: int,
+                max_force_n: float, source: str) -> None:
         if not gain_k > 0 or not dead_time_s > 0:
             raise InputError(f"LoadCellPI: expected K > 0 and dead time > 0, got {gain_k}, "
                              f"{dead_time_s}")
@@ -49,8 +62,23 @@ class LoadCellPI:
         self.dt = 1.0 / control_hz
         self.lead = lead
         self.max_force_n = max_force_n
-        self.integral_limit_n = integral_limit_n
-        self.target_n: float | None = None   # the profile now, set by the loop each cycle
+        self.design = {"source": source, "gain_k": gain_k, "dead_time_s": dead_time_s,
+                       "kp": self.kp, "ki_per_s": self.ki, "lead_cycles": float(lead),
+                       "max_force_n": max_force_n}
+
+    def design_from(self, motor_record: dict[str, Any] | None, control_hz: float,
+                    max_force_n: float) -> None:
+        """Design for the run: from the motor calibration record in use (K = its
+        ``fit.sensitivity``, dead time = its ``fit.lag_s`` + one cycle, lead = the lag in
+        cycles), else the thesis's model at this rate; the limits' maximum force."""
+        if motor_record is None:
+            self._design(DEFAULT_GAIN_K, 0.010, control_hz, int(round(0.008 * control_hz)),
+                         max_force_n, "thesis single model (Eq. D.1), 10 ms dead time")
+        else:
+            fit = motor_record["fit"]
+            k, lag = float(fit["sensitivity"]), float(fit["lag_s"])
+            self._design(k, lag + 1.0 / control_hz, control_hz, int(round(lag * control_hz)),
+                         max_force_n, f"motor calibration {motor_record.get('content_hash', '?')}")
         self.reset()
 
     def reset(self) -> None:

@@ -103,6 +103,8 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     # is the demand, and the learner may plan it, ilc.Learner.plans)
     controller = (None if cfg.loop.controller == "open_loop"
                   else run_svc.load_controller(cfg.loop.controller))
+    if controller is not None and hasattr(controller, "design_from"):   # as rig run does
+        controller.design_from(motor, hz, cfg.limits.max_force_n)
     learner = ilc.Learner.start(reference, initial, filt, cfg.limits, hz, noise_n=noise,
                                 models=models, controller=controller, step=factor)
     method = ("model-based (Newton-type, noise-aware"

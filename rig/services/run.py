@@ -262,6 +262,9 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = motor_cal.demand_source(cfg, full_records)
+    if hasattr(ctl, "design_from"):   # a controller designed from the drive model in use
+        ctl.design_from(next((r for r in full_records if r.get("sensor") == "motor"), None),
+                        cfg.rates.control_hz, cfg.limits.max_force_n)
     # ---- a learned feedforward table replaces the compensation ----
     if learned is not None:
         from rig.control import records as learned_records
@@ -307,6 +310,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     rest = int(round(cfg.loop.rest_s * hz))
     per_trial = settle + dur + rest
     total = per_trial * trials
+    design = getattr(ctl, "design", None)   # how the controller was designed, if it says
     metadata: dict[str, Any] = {
         "rig_config": cfg.to_yaml(),
         "profile": {**profile.to_metadata(), "time": profile.time.tolist(),
@@ -316,6 +320,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         "run": {"trials": trials, "advance_s": compensation["lead_s"], "lockstep": lockstep,
                 "compensation": compensation,
                 "controller": getattr(ctl, "name", type(ctl).__name__),
+                **({"controller_design": design} if isinstance(design, dict) else {}),
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
