@@ -283,12 +283,17 @@ def compensation_for(cfg: RigConfig) -> MotorCompensation:
     return compensation_from_record(found[0])
 
 
+def record_in_use(full_records: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The motor calibration record among a run's embedded records, if it uses one."""
+    return next((r for r in full_records if r.get("sensor") == "motor"), None)
+
+
 def demand_source(cfg: RigConfig, full_records: list[dict[str, Any]]
                   ) -> tuple[Callable[[Profile, float], float], dict[str, Any]]:
     """The loop's feedforward and what it is: the motor calibration's compensation (inverse
     static map of the profile ``lag_s`` ahead) when the run uses a motor record, else the
     profile ``loop.advance_s`` ahead (the thesis's open-loop lag compensation)."""
-    rec = next((r for r in full_records if r.get("sensor") == "motor"), None)
+    rec = record_in_use(full_records)
     if rec is None:
         advance = cfg.loop.advance_s
 

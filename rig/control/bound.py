@@ -61,9 +61,15 @@ class Bound:
         return int(np.sum(self.rising[1:] != self.rising[:-1]) + (not self.rising[0]))
 
 
+def _key_errors(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float
+                ) -> np.ndarray:
+    """|r_j - max(y_j, 0)| at each cycle (N): the key force feels only a pushing drive."""
+    return np.abs(np.asarray(r, float) - np.maximum(model.simulate(d, hz), 0.0))
+
+
 def key_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float) -> float:
     """max_j |r_j - max(y_j, 0)|: the key force's largest error for demand ``d`` (N)."""
-    return float(np.abs(r - np.maximum(model.simulate(d, hz), 0.0)).max())
+    return float(_key_errors(model, r, d, hz).max())
 
 
 def timing_spread(model: plant.DriveModel, d: np.ndarray, hz: float, jitter_s: float
@@ -85,7 +91,7 @@ def timed_error(model: plant.DriveModel, r: np.ndarray, d: np.ndarray, hz: float
     """``key_error`` with the writes' timing: max_j |r_j - max(y_j, 0)| + 3 s_j (N), s
     from ``timing_spread`` (3 sigma: what the timing reaches at a cycle in about one
     trial of several hundred). Equal to ``key_error`` for exact timing."""
-    e = np.abs(np.asarray(r, float) - np.maximum(model.simulate(d, hz), 0.0))
+    e = _key_errors(model, r, d, hz)
     if jitter_s > 0:
         e = e + 3.0 * timing_spread(model, d, hz, jitter_s)
     return float(e.max())

@@ -35,20 +35,24 @@ import numpy as np
 from rig.control.ilc import DEFAULT_GAIN_K
 from rig.errors import InputError
 
+THESIS_LAG_S = 0.008           # the thesis's drive lag incl. the load cell's filter (Eq. D.1)
+THESIS_DEAD_TIME_S = 0.010     # that lag + one 2 ms cycle
+THESIS_DESIGN = "thesis single model (Eq. D.1), 10 ms dead time"
+
 
 class LoadCellPI:
     """PI on the load-cell error with anti-windup; a Controller for ``loop.controller``."""
 
     name = "load_cell_pi"
 
-    def __init__(self, gain_k: float = DEFAULT_GAIN_K, dead_time_s: float = 0.010,
+    def __init__(self, gain_k: float = DEFAULT_GAIN_K, dead_time_s: float = THESIS_DEAD_TIME_S,
                  control_hz: float = 500.0, lead: int = 4, max_force_n: float = 60.0,
                  integral_limit_n: float = 5.0) -> None:
         self.integral_limit_n = integral_limit_n
         self.target_n: float | None = None   # the profile now, set by the loop each cycle
         self._design(gain_k, dead_time_s, control_hz, lead, max_force_n,
-                     "thesis single model (Eq. D.1), 10 ms dead time"
-                     if (gain_k, dead_time_s) == (DEFAULT_GAIN_K, 0.010) else "given")
+                     THESIS_DESIGN if (gain_k, dead_time_s) == (DEFAULT_GAIN_K,
+                                                                THESIS_DEAD_TIME_S) else "given")
         self.reset()
 
     def _design(self, gain_k: float, dead_time_s: float, control_hz: float, lead: int,
@@ -72,8 +76,8 @@ class LoadCellPI:
         ``fit.sensitivity``, dead time = its ``fit.lag_s`` + one cycle, lead = the lag in
         cycles), else the thesis's model at this rate; the limits' maximum force."""
         if motor_record is None:
-            self._design(DEFAULT_GAIN_K, 0.010, control_hz, int(round(0.008 * control_hz)),
-                         max_force_n, "thesis single model (Eq. D.1), 10 ms dead time")
+            self._design(DEFAULT_GAIN_K, THESIS_DEAD_TIME_S, control_hz,
+                         int(round(THESIS_LAG_S * control_hz)), max_force_n, THESIS_DESIGN)
         else:
             fit = motor_record["fit"]
             k, lag = float(fit["sensitivity"]), float(fit["lag_s"])

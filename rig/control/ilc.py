@@ -353,7 +353,7 @@ class Learner:
         if self.best is None or self._as_good_as_best(err["rms_n"]):
             self.best, self.best_u, self._worse = err, self.u.copy(), 0
         else:
-            if self._worse_than_best(err["rms_n"]) and err["max_n"] >= self.best["max_n"]:
+            if self._worse_than_best(err["rms_n"], err["max_n"]):
                 self._worse += 1
             if err["rms_n"] > self.grow_factor * self.best["rms_n"] or self._worse >= 2:
                 self.stopped = (f"the error grew (trial {int(err['trial'])}: RMS "
@@ -577,7 +577,7 @@ class Learner:
         assert self.best is not None
         return rms_n < self.best["rms_n"] or rms_n ** 2 <= self.best["rms_n"] ** 2 + self._margin()
 
-    def _worse_than_best(self, rms_n: float) -> bool:
+    def _worse_than_best(self, rms_n: float, max_n: float = np.inf) -> bool:
         """Worse than the best trial by more than the noise explains: the mean square error
         beyond the noise's (rms^2 - noise^2) exceeds the best's by 21 % (10 % in RMS) plus
         three standard deviations of the difference (1.5 ``_margin``): the best is the
@@ -586,9 +586,10 @@ class Learner:
         best trial's table is never worse: only the noise differs. (With two standard
         deviations, learning that had converged at trial 2 stopped at trial 4 or 6 on
         noise alone: the same key error, 0.146 N, and load-cell RMS 0.237 against
-        0.263-0.267 N.)"""
+        0.263-0.267 N.) Nor is a trial whose maximum error ``max_n`` fell below the best's:
+        the minimax plan trades mean error for maximum error, which is not divergence."""
         assert self.best is not None and self.best_u is not None
-        if np.array_equal(self.u, self.best_u):
+        if np.array_equal(self.u, self.best_u) or max_n < self.best.get("max_n", np.inf):
             return False
         nv = self.noise_n ** 2
         return rms_n ** 2 - nv > 1.21 * (self.best["rms_n"] ** 2 - nv) + 1.5 * self._margin()

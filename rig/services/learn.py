@@ -89,7 +89,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     else:
         ff, _ = motor_cal.demand_source(cfg, full_records)
     initial = np.array([ff(profile, x) for x in t])
-    motor = next((r for r in full_records if r.get("sensor") == "motor"), None)
+    motor = motor_cal.record_in_use(full_records)
     filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None
             else ilc.LearningFilter.default(hz, cfg.loop.advance_s, factor))
     # the load cell's noise (1 sigma, N): the simulated one, else the data sheet's 0.67 N

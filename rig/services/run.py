@@ -263,8 +263,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     full_records = cal_records.embedded(cals, cfg)
     feedforward, compensation = motor_cal.demand_source(cfg, full_records)
     if hasattr(ctl, "design_from"):   # a controller designed from the drive model in use
-        ctl.design_from(next((r for r in full_records if r.get("sensor") == "motor"), None),
-                        cfg.rates.control_hz, cfg.limits.max_force_n)
+        ctl.design_from(motor_cal.record_in_use(full_records), cfg.rates.control_hz,
+                        cfg.limits.max_force_n)
     # ---- a learned feedforward table replaces the compensation ----
     if learned is not None:
         from rig.control import records as learned_records
