@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import re
 from collections.abc import Iterator, Mapping
 from importlib import resources
 from pathlib import Path
@@ -28,7 +29,51 @@ _DATA = resources.files("rig") / "data"
 # libyaml's safe loader where PyYAML was built with it (the wheels are): the same
 # documents, parsed about 10x faster than the pure-Python one (the package's two
 # parameter files took 20-30 ms of every model built in a fresh process)
-_SAFE_LOADER: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_SAFE_BASE: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+# YAML 1.2's core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution), which people
+# write and every current YAML library reads: `9.16e9`, `1e10` and `-3E-4` are floats
+# (YAML 1.1, PyYAML's own rules, needs a dot and a signed exponent and reads them as
+# strings); `010` is ten, not eight; `yes`, `no`, `on`, `off` and `12:30` are strings.
+# PyYAML parses (libyaml, above) and ruamel.yaml's rules are the same (a test checks them
+# against it); ruamel.yaml itself parses a parameter file ~15x slower (benchmarks/yaml_load.py).
+_CORE_RESOLVERS: list[tuple[str, str, list[str]]] = [  # (tag, pattern, first characters)
+    ("tag:yaml.org,2002:null", r"^(?:~|null|Null|NULL|)$", ["~", "n", "N", ""]),
+    ("tag:yaml.org,2002:bool", r"^(?:true|True|TRUE|false|False|FALSE)$", list("tTfF")),
+    ("tag:yaml.org,2002:int", r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$", list("-+0123456789")),
+    ("tag:yaml.org,2002:float",
+     r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+     r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$", list("-+0123456789.")),
+]
+
+
+class _CoreLoader(_SAFE_BASE):
+    """PyYAML's safe loader with YAML 1.2 core-schema scalars (above); merge keys kept."""
+
+    yaml_implicit_resolvers: dict[str, list[tuple[str, Any]]] = {
+        first: [(tag, regexp) for tag, regexp in resolvers
+                if tag == "tag:yaml.org,2002:merge"]
+        for first, resolvers in _SAFE_BASE.yaml_implicit_resolvers.items()}
+    yaml_constructors = dict(_SAFE_BASE.yaml_constructors)
+
+    def construct_core_int(self, node: Any) -> int:
+        text = self.construct_scalar(node)
+        if text.startswith(("0o", "0x")):
+            return int(text[2:], 8 if text[1] == "o" else 16)
+        return int(text, 10)
+
+    def construct_core_float(self, node: Any) -> float:
+        text = self.construct_scalar(node).lower()
+        if text.endswith(".inf"):
+            return -math.inf if text.startswith("-") else math.inf
+        return math.nan if text == ".nan" else float(text)
+
+
+for _tag, _pattern, _first in _CORE_RESOLVERS:
+    _CoreLoader.add_implicit_resolver(_tag, re.compile(_pattern), list(_first))
+_CoreLoader.add_constructor("tag:yaml.org,2002:int", _CoreLoader.construct_core_int)
+_CoreLoader.add_constructor("tag:yaml.org,2002:float", _CoreLoader.construct_core_float)
+_SAFE_LOADER: Any = _CoreLoader
 
 
 def _load_yaml_text(text: str, source: str) -> Any:

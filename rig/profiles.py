@@ -6,9 +6,10 @@ A profile file is YAML with exactly one of three forms of the curve:
       - {hold: 0.02}          # stay at the current force for 0.02 s
       - {ramp: 0.03, to: 30}  # go linearly to 30 N in 0.03 s
     points: [[0, 0], [0.03, 30], ...]   # a table of (time s, force N)
-    csv: measured-force.csv # two columns time_s, force_N: a header line naming them
-                            # (any order) or none (time first); path relative
-                            # to the YAML file
+    csv: measured-force.csv # two columns, time and force: a header line naming them
+                            # with their units (time,force; t,F; time_ms,force_N;
+                            # time [s],force [gf]; any order) or none (time in s
+                            # first, force in N); path relative to the YAML file
 
 plus optional ``name``, ``description`` and ``kind``. A bare ``.csv`` file is accepted
 too. Between points the force is linear. Everything is checked on load:
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,51 +182,109 @@ def _from_segments(segments: Any, source: str,
     return pts
 
 
-def _csv_cell(text: str, path: Path, n: int, column: str) -> float:
+# A CSV column's header: a name, then its unit as `name_unit`, `name [unit]`,
+# `name (unit)`, `name/unit` or `name in unit`, or no unit (SI: s, N).
+_HEADER = re.compile(r"^\s*(?P<name>[A-Za-z]+?)\s*(?:(?:_|/|\s+in\s+)\s*(?P<u1>[^\s\[\]()/]+)"
+                     r"|[\[(]\s*(?P<u2>[^\]\)]+?)\s*[\])])?\s*$")
+_G0 = 9.80665  # standard gravity, m/s^2: grams-force and pounds-force in newtons
+CSV_NAMES = {"time": ("time", "t"), "force": ("force", "f")}  # lower case
+CSV_UNITS: dict[str, dict[str, float]] = {  # each column's units, factor to SI
+    "time": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6, "min": 60.0},
+    "force": {"N": 1.0, "mN": 1e-3, "kN": 1e3, "gf": _G0 * 1e-3, "g": _G0 * 1e-3,
+              "kgf": _G0, "lbf": 0.45359237 * _G0, "ozf": 0.028349523125 * _G0},
+}
+
+
+def _csv_unit(quantity: str, unit: str | None) -> float | None:
+    """The factor from ``unit`` to SI for a column of ``quantity``; None if unknown. Case
+    is ignored where that leaves one unit (`force_n`, `TIME_MS`)."""
+    units = CSV_UNITS[quantity]
+    if unit is None:
+        return 1.0
+    if unit in units:
+        return units[unit]
+    folded = [f for u, f in units.items() if u.lower() == unit.lower()]
+    return folded[0] if len(folded) == 1 else None
+
+
+def csv_header(cells: Sequence[str], path: Path, n: int) -> tuple[tuple[int, int],
+                                                                    tuple[float, float]]:
+    """The columns of time and force a header line names, and their factors to s and N:
+    `time,force`, `t,F`, `time_s,force_N`, `time [ms],force [gf]`, in any order. An unknown
+    column name or unit is one line naming the file, line and column."""
+    found: dict[str, tuple[int, float]] = {}
+    for i, cell in enumerate(cells):
+        m = _HEADER.match(cell)
+        quantity = next((q for q, names in CSV_NAMES.items()
+                         if m and m["name"].lower() in names), None)
+        if m is None or quantity is None:
+            raise _fail(str(path), f"line {n} column {i + 1} {cell.strip()!r}",
+                        "expected a time column (time, t, time_s, time [ms], ...) and a force "
+                        "column (force, F, force_N, force [N], ...)")
+        unit = m["u1"] or m["u2"]
+        factor = _csv_unit(quantity, unit)
+        if factor is None:
+            raise _fail(str(path), f"line {n} column {cell.strip()!r}",
+                        f"unknown {quantity} unit {unit!r} (known: "
+                        f"{', '.join(CSV_UNITS[quantity])})")
+        if quantity in found:
+            raise _fail(str(path), f"line {n} header", f"two {quantity} columns: {list(cells)}")
+        found[quantity] = (i, factor)
+    return ((found["time"][0], found["force"][0]), (found["time"][1], found["force"][1]))
+
+
+def _csv_cell(text: str, path: Path, n: int, column: str, decimal_comma: bool) -> float:
     try:
-        return float(text)
+        return float(text.replace(",", ".") if decimal_comma else text)
     except ValueError:
         raise _fail(str(path), f"line {n} {column}", f"expected a number, got {text.strip()!r}") \
             from None
 
 
+def _delimiter(lines: list[str]) -> str:
+    """`,` unless the file's first lines are separated by `;` (a spreadsheet in a locale
+    with a decimal comma) or tabs, and have no commas outside numbers."""
+    sample = [line for line in lines[:20] if line.strip() and not line.startswith("#")]
+    for sep in (";", "\t"):
+        if sample and all(sep in line for line in sample):
+            return sep
+    return ","
+
+
 def _read_csv(path: Path, source: str) -> list[list[Any]]:
-    """Rows (time s, force N) of a two-column CSV: with a header naming ``time_s`` and
-    ``force_N`` (any order, case and spaces ignored) or without one (time first)."""
+    """Rows (time s, force N) of a two-column CSV, with a header line naming the columns
+    and their units (see `csv_header`; any order) or without one (time s first, force N).
+    `;`- or tab-separated files are read too, a `;`-separated one with decimal commas
+    (`0,01;3,5`); lines starting with `#` are comments."""
     if not path.is_file():
         raise _fail(source, "csv", f"file {path} not found")
-    text = read_text_file(path, MAX_FILE_BYTES)
+    lines = read_text_file(path, MAX_FILE_BYTES).removeprefix("\ufeff").splitlines()
+    sep = _delimiter(lines)
     rows: list[list[Any]] = []
-    order = (0, 1)  # columns of time and force
+    order, factors = (0, 1), (1.0, 1.0)  # columns of time and force; to s and N
     first = True
-    reader = csv.reader(text.splitlines())
+    reader = csv.reader(lines, delimiter=sep)
+    names = CSV_COLUMNS
     try:
         for n, row in enumerate(reader, start=1):
             cells = [c.strip() for c in row]
             while cells and not cells[-1]:
                 cells.pop()
-            if not cells:
+            if not cells or cells[0].startswith("#"):
                 continue
             if len(cells) != 2:
-                raise _fail(str(path), f"line {n}", f"expected two columns {CSV_COLUMNS[0]}, "
-                            f"{CSV_COLUMNS[1]}, got {len(cells)}")
+                raise _fail(str(path), f"line {n}", f"expected two columns, time and force, "
+                            f"got {len(cells)}")
             if first:
                 first = False
-                names = [c.lower() for c in cells]
                 try:
-                    [float(c) for c in cells]
+                    [float(c.replace(",", ".") if sep == ";" else c) for c in cells]
                 except ValueError:
-                    wanted = [c.lower() for c in CSV_COLUMNS]
-                    unknown = [c for c, low in zip(cells, names, strict=True)
-                               if low not in wanted]
-                    if unknown or len(set(names)) != 2:
-                        raise _fail(str(path), f"line {n} header",
-                                    f"expected the columns {CSV_COLUMNS[0]} and "
-                                    f"{CSV_COLUMNS[1]} (any order), got {cells}") from None
-                    order = (names.index(wanted[0]), names.index(wanted[1]))
+                    order, factors = csv_header(cells, path, n)
+                    names = (cells[order[0]], cells[order[1]])
                     continue
-            rows.append([_csv_cell(cells[order[0]], path, n, CSV_COLUMNS[0]),
-                         _csv_cell(cells[order[1]], path, n, CSV_COLUMNS[1])])
+            rows.append([_csv_cell(cells[order[0]], path, n, names[0], sep == ";") * factors[0],
+                         _csv_cell(cells[order[1]], path, n, names[1], sep == ";") * factors[1]])
             if len(rows) > MAX_POINTS:
                 raise _fail(str(path), f"line {n}", f"more than the {MAX_POINTS} points "
                             f"allowed")

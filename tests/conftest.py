@@ -17,6 +17,17 @@ from rig import profiles
 from rig.model.action import ActionModel, SimResult
 
 ROOT = Path(__file__).resolve().parents[1]
+COSTLY = ("interpreter", "cluster", "realtime", "browser")  # markers that imply slow
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m "not slow"` deselects
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test marked by a costly resource (pyproject.toml's markers) is slow too, so the
+    fast tier (tools/test.sh) leaves it to the whole suite."""
+    for item in items:
+        if any(item.get_closest_marker(m) for m in COSTLY) and not item.get_closest_marker(
+                "slow"):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(scope="session", autouse=True)

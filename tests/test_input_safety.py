@@ -176,7 +176,7 @@ def test_csv_header_is_read_by_name(tmp_path: Path, header: str) -> None:
 
 
 @pytest.mark.parametrize(("text", "field"), [
-    ("time,force\n0,0\n0.1,1\n", "line 1 header"),
+    ("time,torque\n0,0\n0.1,1\n", "line 1 column 2 'torque'"),  # time,force is read (issue 34)
     ("time_s,time_s\n0,0\n0.1,1\n", "line 1 header"),
     ("time_s,force_N,extra\n0,0,1\n", "line 1"),
     ("0,0\n0.1,1,2\n", "line 2"),

@@ -1,13 +1,23 @@
 #!/usr/bin/env bash
-# The whole test suite on a fresh machine: test dependencies, headless Chromium for
-# the report-rendering test (Debian package; needs root, else that test skips and
-# says why), then pytest. Extra arguments go to pytest.
+# The README's test command: set-up from the lock (tools/install.sh), headless Chromium
+# for the report-rendering test (Debian package; needs root, else that test skips and
+# says why), then pytest.
+#
+#   bash tools/test.sh           # the fast tier: every test not marked slow (<= 5 min on
+#                                # 2 cores, compile included; docs/performance.md)
+#   bash tools/test.sh --all     # the whole suite (CI runs this too: .ci/run)
+#   bash tools/test.sh ARGS      # pytest's own arguments, e.g. -k yaml, -m slow
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if ! command -v chromium >/dev/null 2>&1 && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     (apt-get update -qq && apt-get install -y -qq --no-install-recommends chromium) \
         || echo "chromium could not be installed; the report-rendering test will skip"
 fi
-python3 -m venv .venv
-.venv/bin/pip install -q -e '.[test]'
+bash tools/install.sh
+if [ "${1:-}" = "--all" ]; then
+    shift
+    exec .venv/bin/python -m pytest "$@"
+elif [ $# -eq 0 ]; then
+    exec .venv/bin/python -m pytest -m "not slow"
+fi
 exec .venv/bin/python -m pytest "$@"
