@@ -53,6 +53,30 @@ from rig.errors import InputError
 from rig.model.vocabulary import EVENT_DOCS
 
 
+def enable_at_zero(daq: Daq, drive: Drive, say: Callable[[str], None]) -> None:
+    """The drive is enabled only after 0 V is on its input: the output is zeroed (and read
+    back where the cards allow) first, since an analog output holds whatever a test panel
+    or a failed session left on it."""
+    volts = daq.zero_output()
+    if volts is not None:
+        say(f"drive output reads {volts:+.4f} V after writing 0 V: enabling the drive")
+    drive.enable()
+
+
+def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
+    """How the run's fresh bridge channels are calibrated before the run (NI), as their
+    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
+    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
+    calibration reads its offset with masses, is left as calibrated."""
+    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
+    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
+    if rs is None:
+        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
+    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
+            "strain_gauge": {"null": True, "shunt_resistor_ohm": float(rs),
+                             "from": "calibration record" if rec else "config"}}
+
+
 @dataclass
 class CycleContext:
     """What a per-cycle hook sees (tests use it to inject faults)."""
@@ -324,6 +348,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
+    bridge_spec = {"bridge_cal": bridge_calibration(cfg, full_records)} \
+        if cfg.backend == "ni" else {}
+    metadata["run"]["bridges"] = {
+        "lowpass_hz": {"load_cell": cfg.channels.load_cell.lowpass_hz,
+                       "strain_gauge": cfg.channels.strain_gauge.lowpass_hz},
+        **bridge_spec}
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
@@ -355,7 +385,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         else:
             drive = Drive(cfg.drive)
         proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
-            daq.reader_spec(), cfg.model_dump(mode="json"),
+            {**daq.reader_spec(), **bridge_spec}, cfg.model_dump(mode="json"),
             {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))
         say("starting the acquisition process ...")
         proc.start()
@@ -363,7 +393,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         say("enabling the drive and arming the acquisition ...")
         for k in range(trials):
             ctrl.put(("trial", k, k * per_trial * spc, (k * per_trial + settle) * spc))
-        drive.enable()
+        enable_at_zero(daq, drive, say)
         monitor = DriveMonitor(drive, cfg.drive.poll_period_s)
         monitor.start()
         daq.arm()
@@ -421,8 +451,11 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             volts = scaling.volts(demand)
             daq.write_volts(volts)
             last_tick = i
+            lateness = daq.write_lateness(tick)   # at the write, on the rig's clock
+            if not late and lateness > cfg.limits.late_threshold_s:
+                streak += 1     # a late write: this cycle counts as late (checked next cycle)
             rows.add([t, i, target, ff, demand, volts, float(limited), measured,
-                         tick.lateness_s, tick.missed, k])
+                         lateness, tick.missed, k])
             if on_cycle is not None:
                 on_cycle(CycleContext(i, k, t, proc.pid, sim_drive, daq))
             if rows.unsent() >= 50:
