@@ -110,13 +110,15 @@ class _Interpreter:
         self.now = 0.0
         self.read_latency_s = 5e-6   # true time from a sample clock edge to the read's return
         self.ao: dict[str, float] = {}          # physical AO channel -> volts on the pin
+        self.stuck: dict[str, float] = {}       # a pin that reads back this whatever is written
         self.events: list[tuple[str, Any]] = []  # ("ao", (channel, volts)) and tests' own
         self.fail: dict[str, DaqError] = {}      # call name -> error raised at its next call
         self._skip = 0
         self._next = 1
         self._last_chan = ""
         self.digitizer = {"SC1Mod1": "Dev2"}   # SCXI module -> the card that digitizes it
-        self.ai_fill = 0.0
+        self.ai_fill: Any = 0.0      # what bridge reads return (broadcast to the array)
+        self.ci_fill: Any = 0.0      # what encoder reads return
         self.avail = 0
 
     # ---- helpers for tests ----
@@ -375,7 +377,8 @@ class _Interpreter:
             m = re.fullmatch(r"(\w+)/_(ao\d+)_vs_aognd", phys)
             if not m:
                 raise UnexpectedCall(f"on-demand read of {phys}")
-            return self.ao.get(f"{m.group(1)}/{m.group(2)}", 0.0)
+            pin = f"{m.group(1)}/{m.group(2)}"
+            return self.stuck.get(pin, self.ao.get(pin, 0.0))
         if not t.started:
             raise UnexpectedCall(f"read on task {t.name} before it was started")
         self._fire_triggers()
@@ -426,13 +429,13 @@ class _Interpreter:
     def read_analog_f64(self, task, num_samps_per_chan, timeout, fill_mode, read_array):
         self._rec("read_analog_f64", task, num_samps_per_chan=num_samps_per_chan,
                   timeout=timeout, fill_mode=fill_mode)
-        read_array[:] = self.ai_fill
+        read_array[:] = self.ai_fill   # (channels x samples) of the reader's array
         return read_array, num_samps_per_chan
 
     def read_counter_f64_ex(self, task, num_samps_per_chan, timeout, fill_mode, read_array):
         self._rec("read_counter_f64_ex", task, num_samps_per_chan=num_samps_per_chan,
                   timeout=timeout, fill_mode=fill_mode)
-        read_array[:] = 0.0
+        read_array[:] = self.ci_fill
         return read_array, num_samps_per_chan
 
     # ---- properties: every get/set/reset of an attribute, recorded with its id ----
