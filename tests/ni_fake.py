@@ -45,6 +45,7 @@ LOWPASS_ENABLE, LOWPASS_CUTOFF = 0x1802, 0x1803
 AVAIL_SAMPS, TOTAL_ACQUIRED, INPUT_BUF_SIZE, NUM_CHANS = 0x1223, 0x192A, 0x186C, 0x217B
 ARM_START_TRIG_TYPE, DIG_EDGE_ARM_START_SRC = 0x1414, 0x1417
 CHAN_TYPE = 0x187F
+EXCIT_VAL = 0x17F5
 CI_COUNT_EDGES_TERM = 0x18C7
 SHUNT_GAIN_ADJUST = 0x193F
 TIMEOUT_ERROR = -200284       # DAQmx: samples not yet acquired before the timeout
@@ -296,12 +297,14 @@ class _Interpreter:
     def create_ai_bridge_chan(self, task, physical_channel, name_to_assign_to_channel, min_val,
                               max_val, units, bridge_config, voltage_excit_source,
                               voltage_excit_val, nominal_bridge_resistance, custom_scale_name):
+        self._excitation = voltage_excit_val
         self._chan("ai_bridge", task, physical_channel, name_to_assign_to_channel,
                    min_val=min_val, max_val=max_val, units=units, bridge_config=bridge_config,
                    voltage_excit_source=voltage_excit_source,
                    voltage_excit_val=voltage_excit_val,
                    nominal_bridge_resistance=nominal_bridge_resistance,
                    custom_scale_name=custom_scale_name)
+        self._t(task).chans[-1].attrs[EXCIT_VAL] = float(self._excitation)
 
     def create_ao_voltage_chan(self, task, physical_channel, name_to_assign_to_channel, min_val,
                                max_val, units, custom_scale_name):

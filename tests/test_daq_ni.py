@@ -32,29 +32,57 @@ def test_ni_config_never_falls_back_to_simulation() -> None:
 
 
 @pytest.mark.hardware
-def test_ni_hardware_triggered_pacing_on_the_shared_clock() -> None:
-    """On the lab PC (drive disabled): the output reads back 0 V, the pacing card starts on
-    the acquisition card's start trigger over RTSI and ticks on its timebase, 50 ticks with
-    no missed one."""
+def test_ni_hardware_dry_run_and_soak() -> None:
+    """On the lab PC, the drive disabled (docs/running.md, "First day on the lab PC"): the
+    rig config of RIG_CONFIG (default: the built-in NI settings); 0 V read back on the drive
+    output; the bridges' lowpass and excitation read back from the driver; the pacing card
+    started by the acquisition card's start trigger over RTSI and ticking on its timebase for
+    RIG_SOAK_S seconds (default 0.1; 600 for the soak) with the acquisition read as a run
+    reads it. Prints one line per step (run pytest with -s)."""
+    import os
+
+    import numpy as np
+
     try:
         nidaqmx.Task().close()
     except nidaqmx.errors.DaqNotFoundError:
         pytest.skip("no NI-DAQmx driver on this machine (DaqNotFoundError)")
-    cfg = ni_config()
+    path = os.environ.get("RIG_CONFIG")
+    cfg = config.load(path) if path else ni_config()
+    soak_s = float(os.environ.get("RIG_SOAK_S", "0.1"))
     d = backends.open_daq(cfg)
     try:
         r = backends.open_reader(d.reader_spec())
         try:
             volts = d.zero_output()
-            assert volts is None or abs(volts) <= cfg.channels.drive_output.zero_tolerance_volts
+            print(f"drive output: {'not read back' if volts is None else f'{volts:+.4f} V'} "
+                  f"after writing 0 V")
+            for name, got in r.bridge_settings().items():   # type: ignore[attr-defined]
+                cut = got["lowpass_cutoff_hz"]
+                print(f"{name}: lowpass {'off' if cut is None else f'{cut:g} Hz'}, excitation "
+                      f"{got['excitation_volts']:g} V")
+                want = getattr(cfg.channels, name)
+                assert got["lowpass_cutoff_hz"] == want.lowpass_hz
+                assert got["excitation_volts"] == pytest.approx(want.excitation_volts)
             d.arm()
             r.start()
-            ticks = []
-            for _ in range(50):
-                ticks.append(d.wait_for_tick())
+            n = max(50, int(round(soak_s * cfg.rates.control_hz)))
+            late = np.empty(n)
+            missed = np.empty(n, dtype=int)
+            samples = 0
+            for k in range(n):
+                tick = d.wait_for_tick()
                 d.write_volts(0.0)
-            assert [t.index for t in ticks][-1] >= 49
-            assert sum(t.missed for t in ticks[1:]) == 0
+                late[k], missed[k] = d.write_lateness(tick), tick.missed
+                if k % 50 == 49:
+                    samples += r.read(0.0).shape[0]
+            thr = cfg.limits.late_threshold_s
+            print(f"soak: {n} ticks ({n / cfg.rates.control_hz:g} s on the card's clock), "
+                  f"missed {int(missed[1:].sum())}, late writes {int((late > thr).sum())} "
+                  f"(> {thr * 1e3:g} ms), max write lateness {late.max() * 1e3:.3f} ms, "
+                  f"{samples} samples read")
+            assert volts is None or abs(volts) <= cfg.channels.drive_output.zero_tolerance_volts
+            assert int(missed[1:].sum()) == 0
         finally:
             r.close()
     finally:

@@ -249,6 +249,11 @@ def test_bridges_get_the_scxi_lowpass_from_the_config(fake, rig) -> None:
         assert {(LOWPASS_ENABLE, True), (LOWPASS_CUTOFF, 100.0)} <= sets
     seq = names(fake, "rig-bridges")
     assert seq.index("set_chan_attribute_double") < seq.index("cfg_samp_clk_timing")
+    assert rig.reader.bridge_settings() == {   # read back through the driver
+        "load_cell": {"lowpass_enable": True, "lowpass_cutoff_hz": 100.0,
+                      "excitation_volts": 5.0},
+        "strain_gauge": {"lowpass_enable": True, "lowpass_cutoff_hz": 100.0,
+                         "excitation_volts": 2.5}}
 
 
 def test_lowpass_other_cutoff_off_and_refused(fake) -> None:

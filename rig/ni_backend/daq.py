@@ -331,6 +331,18 @@ class NiReader(Reader):
             if gain is not None:
                 self.ai.ai_channels[sensor].ai_bridge_shunt_cal_gain_adjust = 1.0
 
+    def bridge_settings(self) -> dict[str, dict[str, Any]]:
+        """What the driver holds for each bridge channel, read back: the SCXI-1520's lowpass
+        (on, cutoff Hz) and the excitation (V)."""
+        out: dict[str, dict[str, Any]] = {}
+        for name in self.ai_sensors:
+            chan = self.ai.ai_channels[name]
+            on = bool(chan.ai_lowpass_enable)
+            out[name] = {"lowpass_enable": on,
+                         "lowpass_cutoff_hz": float(chan.ai_lowpass_cutoff_freq) if on else None,
+                         "excitation_volts": float(chan.ai_excit_val)}
+        return out
+
     def start(self) -> None:
         for task in self.ci:  # counters wait for the AI sample clock
             task.start()
