@@ -407,7 +407,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
                                                          cfg.channels.drive_output)
         lc = cals["load_cell"]
-        streak = 0
+        streak = done = 0
         trial_now = -1
         sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say)
         while True:
@@ -418,7 +418,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             k, local = divmod(i, per_trial)
             t = (local - settle) * dt
             late = tick.lateness_s > cfg.limits.late_threshold_s or tick.missed > 0
-            streak = streak + 1 if late else 0
+            streak = done + 1 if late else done   # the cycles before, and this one's wake-up
             if stop_state["reason"] is not None:
                 reason = stop_state["reason"]
             elif monitor.fault:
@@ -452,8 +452,9 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             daq.write_volts(volts)
             last_tick = i
             lateness = daq.write_lateness(tick)   # at the write, on the rig's clock
-            if not late and lateness > cfg.limits.late_threshold_s:
-                streak += 1     # a late write: this cycle counts as late (checked next cycle)
+            # late cycles in a row up to this one: a late wake-up, missed ticks or a late
+            # write (the last is checked at the next cycle's top)
+            done = done + 1 if late or lateness > cfg.limits.late_threshold_s else 0
             rows.add([t, i, target, ff, demand, volts, float(limited), measured,
                          lateness, tick.missed, k])
             if on_cycle is not None:
