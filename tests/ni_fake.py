@@ -117,6 +117,7 @@ class _Interpreter:
         self._skip = 0
         self._next = 1
         self._last_chan = ""
+        self.first_edge_periods = 0   # sample clock's first edge this many periods after start
         self.digitizer = {"SC1Mod1": "Dev2"}   # SCXI module -> the card that digitizes it
         self.ai_fill: Any = 0.0      # what bridge reads return (broadcast to the array)
         self.ci_fill: Any = 0.0      # what encoder reads return
@@ -393,11 +394,12 @@ class _Interpreter:
         f = self._factor(self._clock_device(t))
         # the first edge at or after now, at least one after the last read, plus skipped ones
         elapsed_card = (self.now - t.t_start) * f
-        k = max(t.last_edge + 1, math.ceil(elapsed_card / period - 1e-9)) + self._skip
+        d = self.first_edge_periods   # edge k comes (k + d) periods after the trigger
+        k = max(t.last_edge + 1, math.ceil(elapsed_card / period - d - 1e-9)) + self._skip
         self._skip = 0
         t.last_edge = k
         t.reads += 1
-        self.now = max(self.now, t.t_start + k * period / f) + self.read_latency_s
+        self.now = max(self.now, t.t_start + (k + d) * period / f) + self.read_latency_s
         return 0.0
 
     def read_counter_scalar_u32(self, task, timeout):

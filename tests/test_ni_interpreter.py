@@ -375,6 +375,18 @@ def test_a_card_clock_100_ppm_off_gives_no_false_late_cycle_in_10_minutes(fake) 
     drift_check(fake, 600.0)   # crosses the 32-bit counter's wrap (214.7 s at 20 MHz) twice
 
 
+def test_a_first_edge_one_period_after_the_trigger_is_tick_0(fake, rig) -> None:
+    fake.first_edge_periods = 1
+    rig.start()
+    ticks = []
+    for _ in range(3):
+        ticks.append(rig.daq.wait_for_tick())
+        rig.daq.write_volts(0.0)
+    assert [(t.index, t.missed) for t in ticks] == [(0, 0), (1, 0), (2, 0)]
+    assert all(0 < t.lateness_s < 1e-4 for t in ticks)
+    assert rig.daq.write_lateness(ticks[-1]) < 1e-4
+
+
 def test_missed_ticks_are_counted_from_edges_and_late_writes_seen(fake, rig) -> None:
     rig.start()
     first = rig.daq.wait_for_tick()

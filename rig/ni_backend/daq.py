@@ -12,9 +12,10 @@ sample 4n stay together for the whole run; the pacing task starts on the acquisi
 card's start trigger. Time on the card: a counter of the pacing card
 (``channels.pacing.clock_counter``) counts that timebase's edges from the pacing
 start (armed by its start trigger), so sample-clock edge k is count k x divisor
-(timebase rate / control rate) on the same oscillator. The tick's index is the
-number of sample-clock edges passed when the read returns (missed ticks: edges,
-not reads); a tick's lateness is the count read just after the write minus the
+(timebase rate / control rate) on the same oscillator, counted from the edge the
+first read returns at (the first edge, whether the card puts it at the trigger or
+a period later). The tick's index is the number of sample-clock edges passed when
+the read returns (missed ticks: edges, not reads); a tick's lateness is the count read just after the write minus the
 edge's count, in the card's seconds (``write_lateness``; ``Tick.lateness_s`` is the
 same at the wake-up). No PC clock enters, so a card running 50-100 ppm off drifts
 nothing.
@@ -132,6 +133,7 @@ class NiDaq(Daq):
         self._raw = 0           # last raw 32-bit count
         self._count = 0         # unwrapped count of timebase edges since the pacing start
         self._write_count: int | None = None
+        self._edge0 = 0         # timebase periods of the first sample-clock edge
         self._closed = False
 
     def reader_spec(self) -> dict[str, Any]:
@@ -209,11 +211,17 @@ class NiDaq(Daq):
             count = self._card_count()
         except nidaqmx.errors.DaqError as exc:
             raise DaqFault(f"pacing read failed ({exc.error_code}): {exc}") from None
-        index = count // self.divisor          # sample-clock edges passed, minus the first
+        if self.index < 0:  # the first read returns at the first edge, whichever it is
+            self._edge0 = count // self.divisor
+        index = count // self.divisor - self._edge0    # sample-clock edges since the first
         missed = max(0, index - self.index - 1)
         self.index = index
         self._write_count = None
-        return Tick(index, (count - index * self.divisor) * self.dt / self.divisor, missed)
+        return Tick(index, self._seconds_after(count, index), missed)
+
+    def _seconds_after(self, count: int, index: int) -> float:
+        """Card seconds from edge ``index``'s timebase count to ``count``."""
+        return (count - (index + self._edge0) * self.divisor) * self.dt / self.divisor
 
     def write_volts(self, volts: float) -> None:
         if self.ao is None or self._closed:
@@ -234,7 +242,7 @@ class NiDaq(Daq):
         minus the tick's sample-clock edge (s)."""
         if self._write_count is None or tick.index != self.index:
             return tick.lateness_s
-        return (self._write_count - tick.index * self.divisor) * self.dt / self.divisor
+        return self._seconds_after(self._write_count, tick.index)
 
     def feedback_ratio(self) -> tuple[int, float]:
         return int(self._fb[0]), float(self._fb[1])
