@@ -11,13 +11,13 @@ One clock: the pacing task's sample clock divides the acquisition card's timebas
 sample 4n stay together for the whole run; the pacing task starts on the acquisition
 card's start trigger. Time on the card: a counter of the pacing card
 (``channels.pacing.clock_counter``) counts that timebase's edges from the pacing
-start (armed by its start trigger), so sample-clock edge k is count k x divisor
-(timebase rate / control rate) on the same oscillator, counted from the edge the
-first read returns at (the first edge, whether the card puts it at the trigger or
-a period later). The tick's index is the number of sample-clock edges passed when
-the read returns (missed ticks: edges, not reads); a tick's lateness is the count read just after the write minus the
-edge's count, in the card's seconds (``write_lateness``; ``Tick.lateness_s`` is the
-same at the wake-up). No PC clock enters, so a card running 50-100 ppm off drifts
+start (armed by its start trigger), so sample-clock edge k is k x divisor (timebase
+rate / control rate) counts after the first edge (the one the first read returns at,
+whether the card puts it at the trigger or a period later), on the same oscillator.
+The tick's index is the number of sample-clock edges passed when the read returns
+(missed ticks: edges, not reads); a tick's lateness is the count read just after the
+write minus the edge's count, in the card's seconds (``write_lateness``;
+``Tick.lateness_s`` is the same at the wake-up). No PC clock enters, so a card running 50-100 ppm off drifts
 nothing.
 
 Safety: ``zero_output`` opens the drive's task, writes 0 V and reads it back on the
