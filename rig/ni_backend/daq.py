@@ -17,8 +17,8 @@ whether the card puts it at the trigger or a period later), on the same oscillat
 The tick's index is the number of sample-clock edges passed when the read returns
 (missed ticks: edges, not reads); a tick's lateness is the count read just after the
 write minus the edge's count, in the card's seconds (``write_lateness``;
-``Tick.lateness_s`` is the same at the wake-up). No PC clock enters, so a card running 50-100 ppm off drifts
-nothing.
+``Tick.lateness_s`` is the same at the wake-up). No PC clock enters, so a card
+running 50-100 ppm off drifts nothing.
 
 Safety: ``zero_output`` opens the drive's task, writes 0 V and reads it back on the
 card's internal channel (``channels.drive_output.readback_channel``) before the run
