@@ -290,6 +290,8 @@ def test_the_run_nulls_and_shunt_calibrates_the_strain_bridge_with_the_record_re
     # no strain record: the config's resistor
     assert run_service.bridge_calibration(cfg, [])["strain_gauge"]["shunt_resistor_ohm"] == \
         cfg.calibration.strain_gauge.shunt_resistor_ohm
+    off = ni_config(channels={"strain_gauge": {"enabled": False}})
+    assert run_service.bridge_calibration(off, records)["strain_gauge"]["null"] is False
 
 
 def test_buffer_full_is_judged_on_the_buffer_daqmx_allocated(fake, rig) -> None:

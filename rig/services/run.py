@@ -5,11 +5,12 @@
 The run's process holds the 500 Hz torque loop; a separate acquisition
 process (rig.acquisition) owns the run file and streams the 2 kHz channels.
 Order: validate the profile against the rig's limits (nothing moves if it is
-refused) -> start the acquisition process -> enable the drive -> arm the
-cards -> loop -> zero demand -> disable the drive -> stop acquisition.
+refused) -> start the acquisition process -> zero the drive output (NI: read it
+back) -> enable the drive -> arm the cards -> loop -> zero demand -> disable the
+drive -> stop acquisition.
 Each cycle: feedforward = profile(t + advance) -- or, when a motor calibration
 record is in use, its inverse force map of profile(t + lag) -- controller hook
-(may use the load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
+(may use the load cell), limits, volts, write, record the write's lateness. Ctrl-C, a drive fault, a
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
 
@@ -73,7 +74,8 @@ def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> di
     if rs is None:
         rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
     return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
-            "strain_gauge": {"null": True, "shunt_resistor_ohm": float(rs),
+            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
+                             "shunt_resistor_ohm": float(rs),
                              "from": "calibration record" if rec else "config"}}
 
 
