@@ -131,6 +131,13 @@ class DriveOutput(_Strict):
     min_volts: float = Field(-10.0, ge=-10, le=0, description="lower clamp of the output "
                              "(V); <= 0 so that zero demand writes exactly 0 V")
     max_volts: float = Field(10.0, gt=0, le=10, description="upper clamp of the output (V)")
+    readback_channel: str = Field(
+        "Dev1/_ao0_vs_aognd",
+        description="analog input that reads the output back (the M-series card's internal "
+                    "channel of ao0): 0 V must read back before the drive is enabled; empty = "
+                    "no read back")
+    zero_tolerance_volts: float = Field(0.02, gt=0, le=0.5, description="largest read back "
+                                        "value (V) accepted as 0 V before enabling the drive")
 
     @model_validator(mode="after")
     def _range(self) -> DriveOutput:
@@ -152,6 +159,41 @@ class Pacing(_Strict):
         "/Dev2/ai/StartTrigger",
         description="terminal of the acquisition card's start trigger (over RTSI) so the loop's "
                     "tick 0 and the 2 kHz sample 0 coincide; empty to start untriggered")
+    timebase_source: str = Field(
+        "/Dev2/20MHzTimebase",
+        description="timebase the pacing card's sample clock divides: the acquisition card's "
+                    "(over the RTSI cable) so both cards keep one clock; empty = the pacing "
+                    "card's own oscillator (the two cards then drift apart)")
+    timebase_rate_hz: float = Field(20e6, ge=1e3, le=1e9, description="rate of "
+                                    "timebase_source; a whole multiple of rates.control_hz")
+    clock_counter: str = Field(
+        "Dev1/ctr0", description="counter on the pacing card that counts the pacing clock's "
+                                 "timebase from the pacing start: the card's own time of each "
+                                 "write (lateness and missed ticks)")
+    clock_counter_source: str = Field(
+        "/Dev1/ai/SampleClockTimebase",
+        description="terminal the clock counter counts: the pacing task's sample-clock timebase")
+    clock_counter_arm: str = Field(
+        "/Dev1/ai/StartTrigger",
+        description="terminal that starts the clock counter: the pacing task's start trigger")
+
+    @model_validator(mode="after")
+    def _counter(self) -> Pacing:
+        if not self.clock_counter:
+            raise InputError("clock_counter: required (the loop's lateness is measured on the "
+                             "card's clock)")
+        return self
+
+
+SCXI_1520_LOWPASS_HZ = (10.0, 100.0, 1000.0, 10000.0)
+
+
+def _scxi_lowpass(v: float | None) -> float | None:
+    if v is not None and float(v) not in SCXI_1520_LOWPASS_HZ:
+        raise InputError(f"expected one of the SCXI-1520's cutoffs "
+                         f"{', '.join(f'{c:g}' for c in SCXI_1520_LOWPASS_HZ)} Hz or null (off), "
+                         f"got {v!r}")
+    return v
 
 
 class LoadCell(_Strict):
@@ -165,6 +207,13 @@ class LoadCell(_Strict):
     full_scale_n: float = Field(111.0, gt=0, le=1e5)
     input_range_mv_per_v: float = Field(3.0, gt=0, le=1000,
                                         description="+- range of the card channel")
+    lowpass_hz: float | None = Field(100.0, description="SCXI-1520 4-pole lowpass cutoff "
+                                     "(10, 100, 1000 or 10000 Hz; the thesis: 100); null = off")
+
+    @field_validator("lowpass_hz")
+    @classmethod
+    def _lowpass(cls, v: float | None) -> float | None:
+        return _scxi_lowpass(v)
 
 
 class StrainGauge(_Strict):
@@ -177,6 +226,13 @@ class StrainGauge(_Strict):
     nominal_resistance_ohm: float = Field(350.0, gt=0, le=1e6)
     lead_wire_resistance_ohm: float = Field(0.0, ge=0, le=1e6)
     input_range_mv_per_v: float = Field(2.0, gt=0, le=1000)
+    lowpass_hz: float | None = Field(100.0, description="SCXI-1520 4-pole lowpass cutoff "
+                                     "(10, 100, 1000 or 10000 Hz; the thesis: 100); null = off")
+
+    @field_validator("lowpass_hz")
+    @classmethod
+    def _lowpass(cls, v: float | None) -> float | None:
+        return _scxi_lowpass(v)
 
 
 class Encoder(_Strict):

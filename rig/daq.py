@@ -7,7 +7,8 @@ inner layout (``daq``: loop and acquisition sides; ``bench``: what calibrations 
 A config asking for NI never falls back to simulation: if the NI driver or cards are
 missing, ``rig.backends.open_daq`` raises.
 
-Loop side (the run's process):  arm() -> wait_for_tick() -> write_volts() ...
+Loop side (the run's process):  zero_output() [then the drive is enabled] -> arm() ->
+wait_for_tick() -> write_volts() -> write_lateness(tick) ...
 Acquisition side (its own process): open_reader(daq.reader_spec()) -> start()
 -> read() blocks of rows in the columns of ``rig.calrecords.raw_names`` (sample, then
 one per sensor of the sensor table).
@@ -52,6 +53,12 @@ class Daq(ABC):
     def reader_spec(self) -> dict[str, Any]:
         """Picklable description from which ``open_reader`` builds the acquisition side."""
 
+    def zero_output(self) -> float | None:
+        """Put the drive's demand at 0 V before the drive is enabled; the read-back volts
+        where the cards allow (else None). DaqFault if it does not read 0 V."""
+        self.write_volts(0.0)
+        return None
+
     @abstractmethod
     def arm(self) -> None:
         """Configure and start the output and pacing (NI: waits for the acquisition's start)."""
@@ -63,6 +70,11 @@ class Daq(ABC):
     @abstractmethod
     def write_volts(self, volts: float) -> None:
         """Set the drive's torque demand (V), effective at once."""
+
+    def write_lateness(self, tick: Tick) -> float:
+        """How late the last ``write_volts`` of ``tick`` reached the output (s) on the rig's
+        clock; by default the tick's own lateness."""
+        return tick.lateness_s
 
     @abstractmethod
     def feedback_ratio(self) -> tuple[int, float]:

@@ -33,10 +33,11 @@ def to_ratio(force_n: np.ndarray | float, sensitivity: float, offset: float) -> 
 def add_ni_channel(task: Any, cfg: LoadCell, name: str = "load_cell") -> None:
     """Add the load cell to an nidaqmx task as a full-bridge V/V channel."""
     add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
-                          False, cfg.excitation_volts, cfg.bridge_resistance_ohm)
+                          False, cfg.excitation_volts, cfg.bridge_resistance_ohm, cfg.lowpass_hz)
 
 
 def ni_calibrate(task: Any, cfg: LoadCell, name: str = "load_cell",
-                 shunt_resistor_ohm: float = 100000.0) -> None:
-    """Offset nulling then shunt calibration on the SCXI-1520 (key unloaded)."""
-    ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.bridge_resistance_ohm)
+                 shunt_resistor_ohm: float | None = None) -> float | None:
+    """Offset nulling, then (with a resistor) shunt calibration on the SCXI-1520 (key
+    unloaded); the driver's gain adjustment, if any."""
+    return ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.bridge_resistance_ohm)

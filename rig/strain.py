@@ -34,13 +34,14 @@ def to_ratio(strain: np.ndarray | float, gage_factor: float, offset: float,
 def add_ni_channel(task: Any, cfg: StrainGauge, name: str = "strain_gauge") -> None:
     """Add the gauge to an nidaqmx task as a quarter-bridge V/V channel (350 ohm)."""
     add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
-                          True, cfg.excitation_volts, cfg.nominal_resistance_ohm)
+                          True, cfg.excitation_volts, cfg.nominal_resistance_ohm, cfg.lowpass_hz)
 
 
 def ni_calibrate(task: Any, cfg: StrainGauge, name: str = "strain_gauge",
-                 shunt_resistor_ohm: float = 100000.0) -> None:
-    """Offset nulling and shunt calibration; bridge_resistance must be 350 (NI defaults to 120)."""
-    ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.nominal_resistance_ohm)
+                 shunt_resistor_ohm: float | None = None) -> float | None:
+    """Offset nulling, then (with the calibration record's resistor) shunt calibration;
+    bridge_resistance is the gauge's (NI defaults to 120). The driver's gain adjustment."""
+    return ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.nominal_resistance_ohm)
 
 
 def shunt_equivalent_strain(gauge_ohm: float, gage_factor: float, shunt_ohm: float) -> float:

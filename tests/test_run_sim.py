@@ -59,6 +59,9 @@ def test_complete_run_has_every_sample_and_command(forte_run) -> None:
     assert [c["sensor"] for c in meta["calibrations"] if not c["nominal"]] == ["load_cell"]
     assert [r["sensor"] for r in meta["calibration_records"]] == ["load_cell"]
     assert meta["run"]["compensation"]["kind"] == "advance"
+    # the SCXI-1520's lowpass of each bridge (a simulated rig nulls no bridge)
+    assert meta["run"]["bridges"] == {"lowpass_hz": {"load_cell": 100.0,
+                                                     "strain_gauge": 100.0}}
     assert {c["sensor"] for c in meta["calibrations"]} >= {"load_cell", "strain_gauge", "hammer"}
     assert run.attrs["git_commit"] and run.attrs["host"] and run.attrs["created"]
     assert meta["loop_lateness"]["cycles"] == cmd["tick"].size
@@ -214,6 +217,22 @@ def test_late_loop_aborts(tmp_path: Path) -> None:
     tr = _aborted(rep, "late cycles in a row")
     assert tr.commands["time"][-1] < 0.2
     assert tr.commands["missed"][-2] > 0
+
+
+@pytest.mark.slow
+def test_late_writes_count_as_late_cycles(tmp_path: Path) -> None:
+    """Lateness is taken at the write (``Daq.write_lateness``, the card's clock on NI): writes
+    late while every wake-up is on time still abort after the limit, and are recorded."""
+    def hook(ctx: svc.CycleContext) -> None:
+        if ctx.t >= 0.02:
+            ctx.daq.write_lateness = lambda tick: 0.0015  # type: ignore[method-assign]
+
+    cfg = sim_cfg(tmp_path, sim={"effects": []}, channels={"strain_gauge": {"enabled": False}},
+                  limits={"max_late_cycles_in_a_row": 3})
+    rep = svc.run(FORTE, cfg, out=tmp_path / "late.h5", on_cycle=hook, lockstep=True)
+    tr = _aborted(rep, "4 late cycles in a row")
+    late = tr.commands["lateness"]
+    assert list(late[-5:-1]) == [0.0015] * 4 and not tr.commands["missed"].any()
 
 
 def test_over_limit_profile_is_refused_before_anything_moves(tmp_path: Path) -> None:

@@ -5,11 +5,12 @@
 The run's process holds the 500 Hz torque loop; a separate acquisition
 process (rig.acquisition) owns the run file and streams the 2 kHz channels.
 Order: validate the profile against the rig's limits (nothing moves if it is
-refused) -> start the acquisition process -> enable the drive -> arm the
-cards -> loop -> zero demand -> disable the drive -> stop acquisition.
+refused) -> start the acquisition process -> zero the drive output (NI: read it
+back) -> enable the drive -> arm the cards -> loop -> zero demand -> disable the
+drive -> stop acquisition.
 Each cycle: feedforward = profile(t + advance) -- or, when a motor calibration
 record is in use, its inverse force map of profile(t + lag) -- controller hook
-(may use the load cell), limits, volts, write, record lateness. Ctrl-C, a drive fault, a
+(may use the load cell), limits, volts, write, record the write's lateness. Ctrl-C, a drive fault, a
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
 
@@ -51,6 +52,31 @@ from rig.daq import Daq
 from rig.drive import Drive, DriveError, DriveMonitor
 from rig.errors import InputError
 from rig.model.vocabulary import EVENT_DOCS
+
+
+def enable_at_zero(daq: Daq, drive: Drive, say: Callable[[str], None]) -> None:
+    """The drive is enabled only after 0 V is on its input: the output is zeroed (and read
+    back where the cards allow) first, since an analog output holds whatever a test panel
+    or a failed session left on it."""
+    volts = daq.zero_output()
+    if volts is not None:
+        say(f"drive output reads {volts:+.4f} V after writing 0 V: enabling the drive")
+    drive.enable()
+
+
+def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
+    """How the run's fresh bridge channels are calibrated before the run (NI), as their
+    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
+    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
+    calibration reads its offset with masses, is left as calibrated."""
+    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
+    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
+    if rs is None:
+        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
+    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
+            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
+                             "shunt_resistor_ohm": float(rs),
+                             "from": "calibration record" if rec else "config"}}
 
 
 @dataclass
@@ -324,6 +350,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
+    bridge_spec = {"bridge_cal": bridge_calibration(cfg, full_records)} \
+        if cfg.backend == "ni" else {}
+    metadata["run"]["bridges"] = {
+        "lowpass_hz": {"load_cell": cfg.channels.load_cell.lowpass_hz,
+                       "strain_gauge": cfg.channels.strain_gauge.lowpass_hz},
+        **bridge_spec}
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
@@ -355,7 +387,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         else:
             drive = Drive(cfg.drive)
         proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
-            daq.reader_spec(), cfg.model_dump(mode="json"),
+            {**daq.reader_spec(), **bridge_spec}, cfg.model_dump(mode="json"),
             {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))
         say("starting the acquisition process ...")
         proc.start()
@@ -363,7 +395,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         say("enabling the drive and arming the acquisition ...")
         for k in range(trials):
             ctrl.put(("trial", k, k * per_trial * spc, (k * per_trial + settle) * spc))
-        drive.enable()
+        enable_at_zero(daq, drive, say)
         monitor = DriveMonitor(drive, cfg.drive.poll_period_s)
         monitor.start()
         daq.arm()
@@ -377,7 +409,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
                                                          cfg.channels.drive_output)
         lc = cals["load_cell"]
-        streak = 0
+        streak = done = 0
         trial_now = -1
         sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say)
         while True:
@@ -388,7 +420,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             k, local = divmod(i, per_trial)
             t = (local - settle) * dt
             late = tick.lateness_s > cfg.limits.late_threshold_s or tick.missed > 0
-            streak = streak + 1 if late else 0
+            streak = done + 1 if late else done   # the cycles before, and this one's wake-up
             if stop_state["reason"] is not None:
                 reason = stop_state["reason"]
             elif monitor.fault:
@@ -421,8 +453,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             volts = scaling.volts(demand)
             daq.write_volts(volts)
             last_tick = i
+            lateness = daq.write_lateness(tick)   # at the write, on the rig's clock
+            # late cycles in a row up to this one: a late wake-up, missed ticks or a late
+            # write (the last is checked at the next cycle's top)
+            done = done + 1 if late or lateness > cfg.limits.late_threshold_s else 0
             rows.add([t, i, target, ff, demand, volts, float(limited), measured,
-                         tick.lateness_s, tick.missed, k])
+                         lateness, tick.missed, k])
             if on_cycle is not None:
                 on_cycle(CycleContext(i, k, t, proc.pid, sim_drive, daq))
             if rows.unsent() >= 50:
