@@ -18,6 +18,8 @@ from rig.model.action import ActionModel, SimResult
 
 ROOT = Path(__file__).resolve().parents[1]
 COSTLY = ("interpreter", "cluster", "realtime", "browser")  # markers that imply slow
+# fixtures that bring a costly resource: a test using one is marked by it
+BY_FIXTURE = {"cluster": "cluster", "fresh_twice": "interpreter"}
 
 
 @pytest.hookimpl(tryfirst=True)  # before `-m "not slow"` deselects
@@ -25,6 +27,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """A test marked by a costly resource (pyproject.toml's markers) is slow too, so the
     fast tier (tools/test.sh) leaves it to the whole suite."""
     for item in items:
+        for fixture, marker in BY_FIXTURE.items():
+            if fixture in getattr(item, "fixturenames", ()):
+                item.add_marker(marker)
         if any(item.get_closest_marker(m) for m in COSTLY) and not item.get_closest_marker(
                 "slow"):
             item.add_marker(pytest.mark.slow)

@@ -158,6 +158,7 @@ def _chromium() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
+@pytest.mark.browser
 def test_report_renders_in_headless_chromium(synthetic: Path, tmp_path: Path) -> None:
     """The compare report is one self-contained file; every figure draws in Chromium with no
     console error; a page with a script error is caught (the check can fail)."""
