@@ -74,7 +74,8 @@ class Where:
         self.path, self.field, self.line = path, field_, line
 
     def fail(self, msg: str) -> InputError:
-        return InputError(f"{self.path}: line {self.line}: {self.field}: {msg}")
+        field_ = f"{self.field}: " if self.field else ""
+        return InputError(f"{self.path}: line {self.line}: {field_}{msg}")
 
     def key(self, parent: Any, key: str) -> Where:
         line = parent.lines.get(key, parent.line) if isinstance(parent, _Map) else self.line
