@@ -192,6 +192,27 @@ def test_lookup_table_monotone_cubic_by_hand(tmp_path):
     np.testing.assert_allclose(y, [0.6875, 1.0, 1.0, 1.0], atol=1e-12)
 
 
+def test_pchip_is_scipys_curve():
+    from scipy.interpolate import PchipInterpolator
+
+    rng = np.random.default_rng(5)
+    for n in (2, 3, 5, 16):
+        x = np.sort(rng.uniform(0, 10, n))
+        y = rng.normal(0, 1, n) if n % 2 else np.cumsum(rng.uniform(0, 1, n))
+        xi = np.linspace(x[0], x[-1], 501)
+        np.testing.assert_allclose(cal.pchip(x, y, xi), PchipInterpolator(x, y)(xi),
+                                   rtol=1e-10, atol=1e-12)
+
+
+def test_the_channel_vocabulary_is_the_models():
+    from rig.model.vocabulary import CHANNEL_DOCS, CHANNEL_UNITS
+    from rig.recordings.channels import CHANNELS
+
+    model = {n: (u, CHANNEL_DOCS.get(n, "")) for n, u in CHANNEL_UNITS.items()
+             if n != "time" and not n.startswith("contact_")}
+    assert {n: CHANNELS[n] for n in model} == model
+
+
 def test_lookup_out_of_range_refused_or_clipped_and_counted(tmp_path):
     src = _write(tmp_path / "s.csv", "x\n-1\n0\n0.5\n1\n2\n3\n")
     base = ("sample_rate_hz: 10\ncolumns:\n  - column: x\n    channel: sensor\n"

@@ -30,13 +30,9 @@ SOURCE = "imported"
 
 def vocabulary() -> dict[str, tuple[str, str]]:
     """The run file's channels: name -> (SI units, meaning)."""
-    from rig.model.vocabulary import CHANNEL_DOCS, CHANNEL_UNITS
+    from rig.recordings.channels import CHANNELS
 
-    out = {n: (u, CHANNEL_DOCS.get(n, "")) for n, u in CHANNEL_UNITS.items()
-           if n not in ("time",) and not n.startswith("contact_")}
-    out.update({"load_cell_ratio": ("V/V", "load cell bridge reading"),
-                "strain_ratio": ("V/V", "strain gauge bridge reading")})
-    return out
+    return dict(CHANNELS)
 
 
 @dataclass
