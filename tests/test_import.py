@@ -466,6 +466,31 @@ def test_a_failure_while_writing_leaves_nothing(tmp_path, monkeypatch):
     assert out.read_bytes() == b"the user's file" and not list(tmp_path.glob(".r.h5*"))
 
 
+def test_json_output_follows_its_schema(tmp_path):
+    import json
+    import re
+
+    jsonschema = pytest.importorskip("jsonschema")
+    text = (ROOT / "docs" / "json.md").read_text()
+    schema = next(s for s in (json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text,
+                                                                  re.S | re.M))
+                  if s["$id"] == "rig.import/1")
+    t, dip, f = _blows()
+    src = _write(tmp_path / "b.csv", "force,dip\n" + "\n".join(
+        f"{b:.6f},{c:.8f}" for b, c in zip(f, dip, strict=True)))
+    m = _write(tmp_path / "map.yaml", "sample_rate_hz: 1000\ncolumns:\n"
+               "  - {column: force, channel: force, units: N}\n"
+               "  - {column: dip, channel: key_dip, units: m}\nsegment: {channel: key_dip}\n")
+    for extra in ([], ["--whole"]):
+        out = tmp_path / f"r{len(extra)}.h5"
+        r = CliRunner().invoke(app, ["import", str(src), "--map", str(m), "--out", str(out),
+                                     "--json", *extra])
+        assert r.exit_code == 0, r.output
+        doc = json.loads(r.output)
+        jsonschema.validate(doc, schema)
+        assert len(doc["trials"]) == (1 if extra else 3)
+
+
 def test_readers_name_the_missing_column_number(tmp_path):
     src = _write(tmp_path / "d.txt", "1 2\n3 4\n")
     table = readers.read(src, "text")

@@ -47,7 +47,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = Path(sys.executable).with_name("rig")
-DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md"]
+DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md", "docs/import.md"]
 NOT_RUN = {
     "python3 -m venv .venv": "CI's own install step (tools/test.sh)",
     ".venv/bin/pip install -e .": "CI's own install step (tools/test.sh)",
