@@ -160,6 +160,30 @@ columns:
     assert tr.units["hammer_angle"] == "rad"
 
 
+def test_several_files_become_consecutive_trials(tmp_path):
+    t, dip, f = _blows(rate=1000.0, n=2)
+    srcs = []
+    for k in range(2):
+        srcs.append(_write(tmp_path / f"take{k}.csv", "force,dip\n" + "\n".join(
+            f"{b * (k + 1):.6f},{c:.8f}" for b, c in zip(f, dip, strict=True))))
+    m = _write(tmp_path / "map.yaml", "sample_rate_hz: 1000\ncolumns:\n"
+               "  - {column: force, channel: force, units: N}\n"
+               "  - {column: dip, channel: key_dip, units: m}\nsegment: {channel: key_dip}\n")
+    res = importer.import_files(srcs, m, tmp_path / "r.h5")
+    assert [(r.trial, r.file) for r in res.trials] == [(0, "take0.csv"), (1, "take0.csv"),
+                                                       (2, "take1.csv"), (3, "take1.csv")]
+    run = runfile.read(tmp_path / "r.h5")
+    assert [x["name"] for x in run.metadata["import"]["files"]] == ["take0.csv", "take1.csv"]
+    assert run.trials[2].attrs["source_file"] == "take1.csv"
+    # the second file's force is twice the first's
+    assert math.isclose(float(run.trials[2].channels["force"].max()),
+                        2 * float(run.trials[0].channels["force"].max()), rel_tol=1e-3)
+    with pytest.raises(InputError, match="--split-repeats: not with --whole"):
+        importer.import_files(srcs, m, tmp_path / "w.h5", segment=False, split_repeats=True)
+    whole = importer.import_files(srcs, m, tmp_path / "w.h5", segment=False)
+    assert len(whole.trials) == 2 and whole.trials[1].samples == t.size
+
+
 # --- calibration ------------------------------------------------------------------------
 
 def _steps(tmp_path: Path, calibration: str, units: str = "1") -> list[cal.Step]:
@@ -405,6 +429,16 @@ BAD_MAPS = [
      r"line 6: segment.min_rest_s: expected a positive number"),
     (GOOD + "format: xlsx\n", r"line 6: format: expected one of"),
     ("- 1\n- 2\n", r"line 1: expected a mapping with columns"),
+    ("sample_rate_hz: 10\nsample_rate_hz: 20\ncolumns: []\n",
+     r"line 2: sample_rate_hz: given twice"),
+    (GOOD + "    calibration:\n      - polynomial: []\n",
+     r"line 7: columns\[0\].calibration\[0\].polynomial: expected the coefficients"),
+    (GOOD + "    calibration:\n      - tare: {seconds: 0}\n",
+     r"line 7: columns\[0\].calibration\[0\].tare.seconds: expected a positive number"),
+    (GOOD + "    calibration:\n      - lookup: {table: [[0, 0], [1, 1]], columns: [a, b]}\n",
+     r"line 7: columns\[0\].calibration\[0\].lookup.columns: expected \[reading, value\]"),
+    (GOOD + "time: {column: 1, units: m}\n".replace("time", "header: maybe\ntime"),
+     r"line 6: header: expected true, false or auto"),
 ]
 
 

@@ -172,6 +172,8 @@ def import_files(files: Sequence[Path], map_path: Path, out: Path, *, force: boo
     spec = m.segment if segment else None
     split = spec.split_repeats if spec is not None and split_repeats is None \
         else bool(split_repeats)
+    if split_repeats and not segment:
+        raise InputError("--split-repeats: not with --whole (which keeps each file whole)")
     if split_repeats and spec is None:
         raise InputError(f"--split-repeats: {m.path} has no segment section (which channel "
                          f"is the key's)")
