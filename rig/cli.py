@@ -235,6 +235,12 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
     _plain(f"{run}: {r.kind} run, status {r.status}")
     _plain(f"created {a.get('created')} on {a.get('host')} by rig "
            f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})")
+    imported = r.metadata.get("import")
+    if isinstance(imported, dict):
+        for f in imported.get("files", []):
+            if isinstance(f, dict):
+                _plain(f"imported from {f.get('name')} ({f.get('format')}, sha256 "
+                       f"{str(f.get('sha256'))[:16]}) through {imported.get('map_file')}")
     model = r.metadata.get("model")
     if isinstance(model, dict):
         names = [e.get("name") for e in model.get("effects", [])]

@@ -353,6 +353,9 @@ def test_cli_imports_the_kawai_recording(tmp_path):
     assert tr.channels["time"][0] < 0 < tr.channels["time"][-1]   # rest before the onset
     assert 0.010 < float(np.max(tr.channels["key_dip"])) < 0.012  # 15/32 in at the bottom
     assert abs(tr.attrs["t0"] - 27.755) < 0.01
+    info = CliRunner().invoke(app, ["info", str(out)])
+    assert info.exit_code == 0 and "imported from hammer_damper_2K_17b.txt (text, sha256 " \
+        "145dddefcda5dbfe) through" in info.output
     # refused without --force, replaced with it
     again = CliRunner().invoke(app, ["import", str(KAWAI_TXT), "--map",
                                      str(KAWAI / "map.yaml"), "--out", str(out),
