@@ -145,6 +145,10 @@ def test_compare_by_motion_needs_no_force_channel(synthetic: Path, tmp_path: Pat
     assert refused.exit_code == 2
     assert "trial 0 has no force channel (input force needs it; --input motion" in \
         refused.output
+    for cmd in (["diagnose", str(run)], ["fit", str(run), "--param", "contacts.4.D"]):
+        r = CliRunner().invoke(app, [*cmd, "--input", "motion"])
+        assert r.exit_code == 2 and f"has no force channel (rig {cmd[0]} needs one; " \
+            "`rig compare --input motion` compares a run without it)" in r.output, r.output
 
 
 def test_bad_inputs_name_the_argument(synthetic: Path) -> None:
