@@ -528,6 +528,17 @@ def test_json_output_follows_its_schema(tmp_path):
         assert len(doc["trials"]) == (1 if extra else 3)
 
 
+def test_the_docs_example_map_is_valid(tmp_path):
+    import re
+
+    text = (ROOT / "docs" / "import.md").read_text()
+    body = re.search(r"^```yaml\n(.*?)^```", text, re.S | re.M).group(1)
+    m = mapfile.load(_write(tmp_path / "map.yaml", body), importer.vocabulary())
+    assert [c.channel for c in m.columns] == ["force", "key_dip", "hammer_angle"]
+    assert m.segment is not None and m.segment.channel == "key_dip"
+    assert m.columns[2].geometry is not None and m.columns[2].stored_units == "rad"
+
+
 def test_readers_name_the_missing_column_number(tmp_path):
     src = _write(tmp_path / "d.txt", "1 2\n3 4\n")
     table = readers.read(src, "text")
