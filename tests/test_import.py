@@ -137,6 +137,23 @@ columns:
         importer.import_files([path], bad, tmp_path / "r2.h5")
 
 
+def test_tdms_without_nptdms_is_refused_with_the_install_line(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "nptdms", None)  # as where npTDMS is not installed
+    path = _write(tmp_path / "x.tdms", "not really")
+    with pytest.raises(InputError, match=r"x.tdms: reading TDMS needs the npTDMS package.*"
+                                         r"pip install 'npTDMS"):
+        readers.read(path, "tdms")
+
+
+def test_geometry_arc_and_sine():
+    g = mapfile.Geometry(0.1)
+    np.testing.assert_allclose(g.angle(np.array([0.0, 0.01, -0.02])), [0.0, 0.1, -0.2])
+    s = mapfile.Geometry(0.1, "sine")
+    np.testing.assert_allclose(s.angle(np.array([0.05])), [math.pi / 6])
+    with pytest.raises(InputError, match="exceeds the radius"):
+        s.angle(np.array([0.2]))
+
+
 def test_hdf5_columns_with_geometry(tmp_path):
     t, dip, f = _blows()
     src = tmp_path / "other.h5"
