@@ -167,6 +167,54 @@ def simulate(
         raise typer.Exit(code=1)
 
 
+@app.command("import")
+def import_cmd(
+    files: Annotated[list[Path], typer.Argument(help="recordings: CSV, TSV, whitespace text, "
+                                                "NI TDMS or HDF5 (every file one map)")],
+    map_file: Annotated[Path, typer.Option("--map", help="the import map (YAML; "
+                                           "docs/import.md)")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="run file to write (.h5)")],
+    split_repeats: Annotated[bool | None, typer.Option(
+        "--split-repeats/--keep-repeats",
+        help="one trial per press of a repeated note (default: the map's segment section)")
+    ] = None,
+    whole: Annotated[bool, typer.Option(
+        "--whole", help="no segmentation: each file is one trial")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+    as_json: _JsonOpt = False,
+) -> None:
+    """Import recordings through a map into a run file, one trial per stroke."""
+    from rig.services import importer
+
+    try:
+        res = importer.import_files(files, map_file, out, force=force,
+                                    split_repeats=split_repeats, segment=not whole)
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
+    if as_json:
+        _emit_json({"schema": "rig.import/1", "out": str(out),
+                    "files": [r.provenance() for r in res.recordings],
+                    "segment_channel": res.segment_channel,
+                    "trials": [t.as_dict() for t in res.trials]})
+        return
+    for r in res.recordings:
+        clipped = ", ".join(f"{k} {v}" for k, v in r.clipped.items() if v)
+        _plain(f"{r.path}: {r.time.size} samples, {r.time[-1] - r.time[0]:.3f} s, sha256 "
+               f"{r.sha256[:16]}" + (f"; clipped to the lookup table: {clipped}" if clipped
+                                     else ""))
+    if res.segment_channel is not None:
+        from rig import display
+
+        k, u = display.scale(res.segment_units)
+        _plain(f"strokes found on {res.segment_channel}:")
+        _plain(f"{'trial':>5} {'file':<24} {'onset s':>9} {'release s':>9} "
+               f"{'length s':>8} {'peak ' + u:>10} {'presses':>7}")
+        for t in res.trials:
+            _plain(f"{t.trial:>5} {t.file[:24]:<24} {t.onset_s:>9.3f} {t.release_s:>9.3f} "
+                   f"{t.duration_s:>8.3f} {t.peak * k:>10.4g} {t.presses:>7}")
+    _plain(f"wrote {out}: {len(res.trials)} trial{'s' if len(res.trials) != 1 else ''}")
+
+
 @app.command()
 def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
          as_json: _JsonOpt = False) -> None:
@@ -187,6 +235,12 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
     _plain(f"{run}: {r.kind} run, status {r.status}")
     _plain(f"created {a.get('created')} on {a.get('host')} by rig "
            f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})")
+    imported = r.metadata.get("import")
+    if isinstance(imported, dict):
+        for f in imported.get("files", []):
+            if isinstance(f, dict):
+                _plain(f"imported from {f.get('name')} ({f.get('format')}, sha256 "
+                       f"{str(f.get('sha256'))[:16]}) through {imported.get('map_file')}")
     model = r.metadata.get("model")
     if isinstance(model, dict):
         names = [e.get("name") for e in model.get("effects", [])]

@@ -111,7 +111,44 @@ def test_compare_motion_driven_follows_the_key(synthetic: Path) -> None:
     meas = ms.load(synthetic)[0]
     comp = cp.compare(meas, [("base", ActionModel())], input="motion", duration=0.07)
     assert "force" in comp.channels  # the force is now an output of the model
-    assert comp.models[0].errors["key_dip"].nrms < 0.02
+    # the key's motion is the input (issue 38): reported as such, not scored
+    assert "key_dip" not in comp.channels and "key_dip" not in comp.models[0].errors
+    rng = float(np.ptp(meas.channels["key_dip"][(meas.time >= 0) & (meas.time <= 0.07)]))
+    assert comp.inputs["key_dip"] < 0.02 * rng
+    assert "key_dip [m]" in cp.table(comp) and "not scored" in cp.table(comp)
+
+
+def test_compare_by_motion_needs_no_force_channel(synthetic: Path, tmp_path: Path) -> None:
+    """A run with only motions (an imported recording, issue 38): `rig compare --input
+    motion` drives the model by the key and compares the rest; the force input refuses it
+    with one line."""
+    import h5py
+    from typer.testing import CliRunner
+
+    from rig.cli import app
+
+    run = tmp_path / "motions.h5"
+    shutil.copy(synthetic, run)
+    with h5py.File(run, "r+") as f:
+        for name in [n for n in f if n.startswith("trial_")]:
+            for sec in ("channels", "commands"):
+                for ch in ("force", "load_cell_ratio", "demand", "measured_force"):
+                    if ch in f[name].get(sec, {}):
+                        del f[name][sec][ch]
+    r = CliRunner().invoke(app, ["compare", str(run), "--input", "motion", "--trial", "0",
+                                 "--duration", "0.05"])
+    assert r.exit_code == 0, r.output
+    assert re.search(r"key_dip \[m\] +input +the key's measured motion drives the models",
+                     r.output), r.output
+    assert "hammer_angle" in r.output and "force [N]" not in r.output
+    refused = CliRunner().invoke(app, ["compare", str(run), "--trial", "0"])
+    assert refused.exit_code == 2
+    assert "trial 0 has no force channel (input force needs it; --input motion" in \
+        refused.output
+    for cmd in (["diagnose", str(run)], ["fit", str(run), "--param", "contacts.4.D"]):
+        r = CliRunner().invoke(app, [*cmd, "--input", "motion"])
+        assert r.exit_code == 2 and f"has no force channel (rig {cmd[0]} needs one; " \
+            "`rig compare --input motion` compares a run without it)" in r.output, r.output
 
 
 def test_bad_inputs_name_the_argument(synthetic: Path) -> None:

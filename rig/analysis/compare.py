@@ -27,7 +27,7 @@ import numpy as np
 from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
-from rig.model.action import EVENT_ORDER, ActionModel, SimResult
+from rig.model.action import CHANNEL_UNITS, EVENT_ORDER, ActionModel, SimResult
 
 PHASES: tuple[tuple[str, str | None, str | None], ...] = (
     ("rest", None, "key_starts"),
@@ -48,6 +48,10 @@ EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
     "key_bottom": ("key_dip", "key_angle"),
     "key_release": ("key_dip", "key_angle"),
 }
+# the measured channels that drive the model under each input: reported as the input
+# (the model's tracking of them), never scored as a residual
+INPUT_CHANNELS: dict[str, tuple[str, ...]] = {"force": ("force",), "command": (),
+                                              "motion": ("key_dip", "key_angle")}
 # the event errors that matter to piano makers (name, event or None, units)
 KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
     ("strike time", "strike", "ms"),
@@ -107,6 +111,9 @@ class Comparison:
     strike_speed: float
     phases: list[tuple[str, float, float]]
     models: list[ModelComparison] = field(default_factory=list)
+    # the measured channels that drive the models (input motion: the key's) -> the first
+    # model's RMS tracking error, in the channel's units; not scored
+    inputs: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """The comparison's figures as plain data (``rig compare --json``, docs/json.md)."""
@@ -116,6 +123,7 @@ class Comparison:
             "events": dict(self.events), "event_source": dict(self.event_source),
             "strike_speed": self.strike_speed,
             "phases": [{"name": p, "start_s": a, "end_s": b} for p, a, b in self.phases],
+            "inputs": dict(self.inputs),
             "models": [{
                 "label": m.label, "ok": m.ok, "message": m.result.message,
                 "errors": {c: {"rms": e.rms, "nrms": e.nrms, "max": e.max, "units": e.units,
@@ -137,7 +145,9 @@ def prepare(meas: Measurement, input: str = "force", duration: float | None = No
     window = (meas.time >= 0) & (meas.time <= dur + 1e-9)
     avail = meas.signal_channels()
     if channels is None:
-        names = [c for c in avail if not (c == "force" and input == "force")]
+        # the input is not compared, nor a channel no model has (an imported sensor's own)
+        names = [c for c in avail if c not in INPUT_CHANNELS.get(input, ())
+                 and c in CHANNEL_UNITS]
     else:
         names = list(channels)
         for c in names:
@@ -145,7 +155,10 @@ def prepare(meas: Measurement, input: str = "force", duration: float | None = No
                 raise InputError(f"channels: {c!r} is not a calibrated channel of "
                                  f"{meas.label} (it has {avail})")
     if not names:
-        raise InputError(f"channels: {meas.label} has no channel to compare besides the input")
+        other = [c for c in avail if c not in CHANNEL_UNITS]
+        raise InputError(f"channels: {meas.label} has no channel to compare besides the input"
+                         + (f" ({', '.join(other)}: not channels of the model)" if other
+                            else ""))
     rest = meas.rest_mask()
     measured = {}
     for c in names:
@@ -306,10 +319,34 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
         i = int(np.searchsorted(meas.time, meas.events["strike"], side="right")) - 1
         speed = float(meas.channels["hammer_head_velocity"][max(i, 0)])
     comp = Comparison(meas, input, time, names, measured, ranges, noise, events, src, speed,
-                      phases)
+                      phases, inputs=_tracking(meas, input, time, ref, names))
     for (label, _), res, pred in zip(models, sims, preds, strict=True):
         comp.models.append(_score(comp, label, res, pred))
     return comp
+
+
+def _tracking(meas: Measurement, input: str, time: np.ndarray, ref: SimResult,
+              compared: Sequence[str]) -> dict[str, float]:
+    """Under the motion input, the key channels' RMS tracking error of the reference
+    simulation (rest removed alike), for those the trial has and that are not compared on
+    request. (Under the force input the model's force is the measured one by construction.)"""
+    if input != "motion":
+        return {}
+    names = [c for c in INPUT_CHANNELS[input] if c in meas.channels
+             and c not in compared and c in ref.channels]
+    if not names:
+        return {}
+    rest = meas.rest_mask()
+    window = (meas.time >= 0) & (meas.time <= time[-1] + 1e-9)
+    pred = predicted_channels(ref, time, names, {c: meas.relative(c) for c in names})
+    out = {}
+    for c in names:
+        x = meas.channels[c]
+        off = _rest_value(meas.time, x, rest) if meas.relative(c) else 0.0
+        r = pred[c] - (x[window] - off)
+        r = r[np.isfinite(r)]
+        out[c] = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
+    return out
 
 
 def _score(comp: Comparison, label: str, res: SimResult,
@@ -348,6 +385,11 @@ def table(comp: Comparison) -> str:
              f"at {comp.measurement.rate:g} Hz"]
     head = f"{'channel':<26}{'':>8}" + "".join(f"{x:>{w}}" for x in labels)
     lines += [head, "-" * len(head)]
+    for c, rms in comp.inputs.items():
+        units = comp.measurement.units.get(c, "")
+        lines.append(f"{c + ' [' + units + ']':<26}{'input':>8}   the key's measured motion "
+                     f"drives the models ({labels[0]} follows it within {rms:.3g} {units} "
+                     f"RMS; not scored)")
     for c in comp.channels:
         units = comp.measurement.units.get(c, "")
         for kind, key in (("RMS", "rms"), ("norm.", "nrms"), ("max", "max")):

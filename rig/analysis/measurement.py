@@ -96,8 +96,12 @@ def status_warning(path: str | Path) -> str | None:
             f"writer died); the analysis uses only the samples flushed so far")
 
 
-def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurement]:
-    """The trials of a run file as measurements (all of them by default)."""
+def load(path: str | Path, trials: Sequence[int] | None = None,
+         input: str = "force", *, force_for: str | None = None) -> list[Measurement]:
+    """The trials of a run file as measurements (all of them by default). A trial without a
+    force channel is refused unless ``input`` is ``motion`` (the key's measured motion
+    drives the model; the force is then only compared when the trial has one) and no
+    ``force_for`` (a command that needs the force whatever the input) is given."""
     run = runfile.read(path)
     if not run.trials:
         raise InputError(f"{path}: the run file holds no trial")
@@ -109,8 +113,11 @@ def load(path: str | Path, trials: Sequence[int] | None = None) -> list[Measurem
         tr = run.trials[i]
         if "time" not in tr.channels or tr.channels["time"].size < 20:
             raise InputError(f"{path}: trial {i} has no time channel or too few samples")
-        if "force" not in tr.channels:
-            raise InputError(f"{path}: trial {i} has no force channel")
+        if "force" not in tr.channels and (input != "motion" or force_for):
+            why = (f"{force_for} needs one; `rig compare --input motion` compares a run "
+                   f"without it" if force_for else f"input {input} needs it; --input motion "
+                   f"drives the model by the key's motion")
+            raise InputError(f"{path}: trial {i} has no force channel ({why})")
         ev = {k: v for k, v in tr.events.items() if math.isfinite(v)}
         out.append(Measurement(np.asarray(tr.channels["time"], float),
                                {k: np.asarray(v, float) for k, v in tr.channels.items()},
@@ -182,7 +189,8 @@ def simulate(model: ActionModel, meas: Measurement, input: str = "force",
 
     ``force``: the measured key force; ``command``: the loop's demand;
     ``motion``: the measured key dip, followed by a stiff PD force on the key
-    (feed-forward: the measured force), so the model's force is an output.
+    (feed-forward: the measured force, when the trial has one), so the model's force is
+    an output.
     """
     if input not in INPUTS:
         raise InputError(f"input: expected one of {INPUTS}, got {input!r}")
@@ -209,7 +217,9 @@ def _simulate_motion(model: ActionModel, meas: Measurement, duration: float,
     n = int(math.floor(duration * meas.rate + 1e-9))
     f_prev = 0.0
     e_prev = 0.0
-    ff = np.clip(meas.channels["force"], 0.0, None)
+    # feed-forward: the measured key force when the trial has one, else the servo alone
+    ff = np.clip(meas.channels["force"], 0.0, None) if "force" in meas.channels else \
+        np.zeros_like(meas.time)
     for i in range(1, n + 1):
         t1 = i * dt
         target = float(np.interp(t1, meas.time, dip))

@@ -31,7 +31,7 @@ def compare(run: Path, model_files: Sequence[Path], *, input: str = "force",
             report_path: Path | None = None) -> list[cp.Comparison]:
     """Compare every model with each selected trial (the first by default)."""
     models = load_models(model_files)
-    meas = ms.load(run, list(trials) if trials else [0])
+    meas = ms.load(run, list(trials) if trials else [0], input=input)
     comps = [cp.compare(m, models, input, duration, channels) for m in meas]
     if report_path is not None:  # every requested trial
         files: list[str | None] = [str(f) for f in model_files] or [None]
