@@ -110,9 +110,8 @@ columns:
 
 
 def test_tdms_written_by_nptdms(tmp_path):
-    nptdms = pytest.importorskip(
-        "nptdms", reason="npTDMS is not in requirements.lock (add npTDMS==1.13.0); the TDMS "
-                         "reader is tested where it is installed")
+    import nptdms  # a dependency of rig (pyproject.toml); never skipped
+
     t, dip, f = _blows(rate=2000.0)
     path = tmp_path / "rig.tdms"
     with nptdms.TdmsWriter(str(path)) as w:
