@@ -17,15 +17,15 @@ from rig import profiles
 from rig.model.action import ActionModel, SimResult
 
 ROOT = Path(__file__).resolve().parents[1]
-COSTLY = ("interpreter", "cluster", "realtime", "browser")  # markers that imply slow
+COSTLY = ("cluster", "browser")  # cost markers that always imply slow (seconds to start)
 # fixtures that bring a costly resource: a test using one is marked by it
 BY_FIXTURE = {"cluster": "cluster", "fresh_twice": "interpreter"}
 
 
 @pytest.hookimpl(tryfirst=True)  # before `-m "not slow"` deselects
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """A test marked by a costly resource (pyproject.toml's markers) is slow too, so the
-    fast tier (tools/test.sh) leaves it to the whole suite."""
+    """Cost markers from the fixtures a test uses; a test that starts a cluster or a
+    browser is slow too, so the fast tier (tools/test.sh) leaves it to the whole suite."""
     for item in items:
         for fixture, marker in BY_FIXTURE.items():
             if fixture in getattr(item, "fixturenames", ()):

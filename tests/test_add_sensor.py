@@ -84,6 +84,7 @@ def edited_table(shadow: Path) -> ModuleType:
     return mod
 
 
+@pytest.mark.slow
 def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
                                                             tmp_path: Path) -> None:
     rig_yaml = tmp_path / "rig.yaml"

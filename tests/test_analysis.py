@@ -196,6 +196,7 @@ def _chromium() -> str | None:
 
 
 @pytest.mark.browser
+@pytest.mark.slow
 def test_report_renders_in_headless_chromium(synthetic: Path, tmp_path: Path) -> None:
     """The compare report is one self-contained file; every figure draws in Chromium with no
     console error; a page with a script error is caught (the check can fail)."""
@@ -244,6 +245,7 @@ def _render(exe: str, html_path: Path) -> tuple[str, str]:
     return out.stdout, out.stderr
 
 
+@pytest.mark.slow
 def test_cli_synth_compare_fit_diagnose(tmp_path: Path) -> None:
     runner = CliRunner()
     truth = tmp_path / "truth.yaml"

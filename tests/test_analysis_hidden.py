@@ -370,6 +370,7 @@ def test_a_drives_own_pair_is_walked_along_its_valley_whatever_its_correlation()
     assert dg._valley_pairs(shank, by_name) == []
 
 
+@pytest.mark.slow
 def test_a_newcomer_credited_with_the_sets_own_refit_is_not_named(tmp_path: Path) -> None:
     """A round refits the effects already chosen with each newcomer; when that refit alone
     makes the gain (the set so far was fitted short of its minimum), the newcomer is not

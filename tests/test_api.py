@@ -200,6 +200,7 @@ def _piped(args: list[str]) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=900)
 
 
+@pytest.mark.slow
 def test_progress_off_a_terminal_is_plain_lines_on_stderr_and_q_silences_it(tmp_path) -> None:
     blow = tmp_path / "b.h5"
     rig.simulate(FORTE, duration=0.03, out=blow)
@@ -229,6 +230,7 @@ def test_shell_completion_of_commands_options_and_effect_names(words, cword, exp
     assert res.stdout.split() == expected, res.stderr
 
 
+@pytest.mark.slow
 def test_compare_and_diagnose_json_validate_and_say_what_the_text_says(tmp_path) -> None:
     from rig import profiles
     from rig.analysis import synth

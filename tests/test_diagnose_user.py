@@ -100,6 +100,7 @@ def test_fit_write_keeps_values_of_effects_named_by_path(my_effects: Path,
     assert loaded.effects[0].values["scale"] == v
 
 
+@pytest.mark.slow
 def test_user_effect_with_own_coordinate_is_a_candidate_and_written_loadable(
         my_effects: Path, tmp_path: Path) -> None:
     truth = ActionModel(effects=[{"my_effects.py:HammerMaxwell": {"k": 2.0, "tau": 0.05}}],

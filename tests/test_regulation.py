@@ -66,6 +66,7 @@ def test_missing_model_is_refused_in_one_line(tmp_path):
 TARGETS = ROOT / "rig" / "data" / "regulation-targets.yaml"
 
 
+@pytest.mark.slow
 def test_regulate_to_the_thesis_targets_writes_a_model_that_meets_them(tmp_path):
     out_yaml = tmp_path / "regulated.yaml"
     out = rig_cli("regulate", "--to", str(TARGETS), "--write", str(out_yaml))

@@ -19,8 +19,9 @@ import yaml
 
 from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/maps").exists(),
-                                reason="the leftover checks read /proc (Linux)")
+pytestmark = [pytest.mark.skipif(not Path("/proc/self/maps").exists(),
+                                 reason="the leftover checks read /proc (Linux)"),
+              pytest.mark.realtime]  # what these tests cost (pyproject.toml)
 
 PROFILE = ("name: long\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.3, to: 20}\n"
            "  - {hold: 10.0}\n  - {ramp: 0.3, to: 0}\n")
@@ -320,6 +321,7 @@ def test_existing_out_file_is_not_overwritten_without_force(tmp_path: Path) -> N
     assert (tmp_path / "run.h5").read_bytes() == b"precious"
 
 
+@pytest.mark.slow
 def test_only_the_cut_trial_is_aborted_and_no_repeatability(tmp_path: Path) -> None:
     from rig import config, runfile
     from rig.services import run as svc
@@ -412,6 +414,7 @@ def test_disk_full_mid_run_keeps_what_was_written(tmp_path: Path, small_fs: Path
     assert out.count("Traceback") == 0, out
 
 
+@pytest.mark.slow
 def test_a_drive_that_does_not_answer_ends_the_run_within_2_s(tmp_path: Path) -> None:
     import threading
 

@@ -18,6 +18,8 @@ from rig.cli import app
 from rig.model.action import ActionModel
 from rig.services import run as svc
 
+pytestmark = pytest.mark.realtime  # what these tests cost (pyproject.toml)
+
 ROOT = Path(__file__).resolve().parents[1]
 FORTE = ROOT / "profiles" / "forte.yaml"
 
@@ -155,6 +157,7 @@ def _aborted(rep: svc.RunReport, words: str) -> runfile.Trial:
     return tr
 
 
+@pytest.mark.slow
 def test_ctrl_c_mid_blow_zeroes_demand_and_aborts(tmp_path: Path) -> None:
     states = []
 
@@ -205,6 +208,7 @@ def test_killed_acquisition_process_aborts_with_data_so_far(tmp_path: Path) -> N
     assert tr.commands["tick"].size == tr.commands["time"].size
 
 
+@pytest.mark.slow
 def test_late_loop_aborts(tmp_path: Path) -> None:
     def hook(ctx: svc.CycleContext) -> None:
         if ctx.t >= 0.02:
@@ -245,6 +249,7 @@ def test_over_limit_profile_is_refused_before_anything_moves(tmp_path: Path) -> 
     assert not (tmp_path / "no.h5").exists()
 
 
+@pytest.mark.slow
 def test_trials_into_one_file_with_repeatability(tmp_path: Path) -> None:
     rep = svc.run(FORTE, sim_cfg(tmp_path), trials=2, out=tmp_path / "two.h5")
     run = runfile.read(rep.path)
@@ -287,6 +292,7 @@ def _cpus_allowed(tid: int, pid: int | None = None) -> str:
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux-only")
+@pytest.mark.slow
 def test_loop_cpu_pins_the_loop_thread_and_only_it(tmp_path: Path) -> None:
     cpus = os.sched_getaffinity(0)
     if len(cpus) < 2:
@@ -317,6 +323,7 @@ def test_loop_cpu_pins_the_loop_thread_and_only_it(tmp_path: Path) -> None:
     assert not any("loop.cpu" in ln for ln in lines)
 
 
+@pytest.mark.slow
 def test_loop_cpu_unsupported_is_said_once_and_runs_unpinned(tmp_path: Path,
                                                              monkeypatch) -> None:
     monkeypatch.setattr(svc.pacing, "usable_cpus", lambda: None)
@@ -349,6 +356,7 @@ def test_loop_cpu_not_on_this_machine_is_refused_before_anything_starts(tmp_path
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
+@pytest.mark.slow
 def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path) -> None:
     """The drive monitor, the simulated drive and the command queue's feeder take the GIL: in
     the normal class, one preempted while holding it holds the loop (docs/performance.md)."""

@@ -86,6 +86,7 @@ def _realtime_cfg(**sections: dict) -> config.RigConfig:
     return config.builtin_sim(**data)
 
 
+@pytest.mark.slow
 def test_plant_building_its_model_is_reported_and_waited_for(monkeypatch) -> None:
     """Compiling the model on first use takes about a minute: the start must wait for
     it (sim.build_timeout_s, not the acquisition's start timeout) and say why."""

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # a rigid blow of 20 ms, then (optionally) a new compiled function that needs the
@@ -22,6 +24,8 @@ import numpy as np
 from rig.model import cache_loading
 from rig.model.action import ActionModel
 from rig import profiles
+
+pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
 m = ActionModel.from_yaml(None)
 p = profiles.load(sys.argv[1])
 r = m.simulate(p, 0.02)
@@ -54,6 +58,7 @@ def blow(fresh_twice, tmp_path: Path, then: str = "", **env: str) -> dict:
                        **env)
 
 
+@pytest.mark.slow
 def test_a_cached_blow_loads_without_the_compiler_registries(fresh_twice, tmp_path):
     lazy = blow(fresh_twice, tmp_path)
     assert lazy["installed"] and lazy["success"]
@@ -65,6 +70,7 @@ def test_a_cached_blow_loads_without_the_compiler_registries(fresh_twice, tmp_pa
     assert eager["key_end"] == lazy["key_end"]  # the same machine code, the same blow
 
 
+@pytest.mark.slow
 def test_a_compile_after_a_cached_load_sees_every_registry(fresh_twice, tmp_path):
     out = blow(fresh_twice, tmp_path, "compile")
     assert out["installed"] and not out["arraymath_after_blow"]

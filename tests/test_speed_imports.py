@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
+
 ROOT = Path(__file__).resolve().parents[1]
 # what no light command needs: numerical libraries simulate does not use, plotting,
 # the analysis package, the rig's hardware and service layers; numba's compiler
@@ -65,6 +67,7 @@ def simulated(tmp_path_factory) -> tuple[Path, Path, set[str]]:
     return work, cache, mods
 
 
+@pytest.mark.slow
 def test_simulate_imports_only_what_it_uses(simulated):
     _, _, mods = simulated
     assert "rig.model.action" in mods  # (the probe ran the command)

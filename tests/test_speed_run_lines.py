@@ -4,12 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from rig import config
 from rig.services import run as svc
+
+pytestmark = pytest.mark.realtime  # what these tests cost (pyproject.toml)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_run_says_what_the_start_is_doing(tmp_path: Path) -> None:
     profile = tmp_path / "short.yaml"
     profile.write_text("name: short\nsegments:\n  - {hold: 0.01}\n  - {ramp: 0.02, to: 5}\n"

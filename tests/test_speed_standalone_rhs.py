@@ -37,6 +37,8 @@ for name, disp in (("rhs", k.rhs), ("rosenbrock", integrators_stiff.ros_run),
     disp._cache.load_overload = record
 from rig import profiles
 from rig.model.action import ActionModel
+
+pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
 m = ActionModel.from_yaml(None, effects=["flexible_shank", "key_liftoff"],
                           integrator=sys.argv[2])
 r = m.simulate(profiles.load(sys.argv[1]), 0.06)
@@ -55,6 +57,7 @@ def blow(fresh_twice, tmp_path: Path, integrator: str, link: bool) -> dict:
 
 
 @pytest.mark.parametrize("integrator", ["rosenbrock", "dopri54", "rk4"])
+@pytest.mark.slow
 def test_the_integrator_calls_the_standalone_rhs_and_the_blow_is_unchanged(fresh_twice,
                                                                           tmp_path, integrator):
     linked = blow(fresh_twice, tmp_path, integrator, link=True)

@@ -215,6 +215,7 @@ def test_designs():
         sw.make_design("random", axes, 8)
 
 
+@pytest.mark.slow
 def test_executor_for_reads_the_environment(monkeypatch):
     monkeypatch.delenv("RIG_SCHEDULER", raising=False)
     ex = executor_for(jobs=2)
@@ -245,6 +246,7 @@ def _doc_commands() -> list[list[str]]:
     return cmds
 
 
+@pytest.mark.slow
 def test_worked_sweep_from_the_docs_locally_and_on_the_cluster(cluster, tmp_path):
     """The docs' worked sweep runs as shown, on local processes and through --scheduler;
     both give the same table; hammer_shank_beam.density (the rigid model has no flexible
@@ -303,6 +305,7 @@ def test_the_density_axis_is_truly_inert(tmp_path):
     np.testing.assert_array_equal(lo, hi)
 
 
+@pytest.mark.slow
 def test_sweep_cli_refuses_bad_input_and_existing_out(tmp_path):
     out = tmp_path / "s.h5"
     out.write_bytes(b"precious")
@@ -320,6 +323,7 @@ def test_sweep_cli_refuses_bad_input_and_existing_out(tmp_path):
     assert not (tmp_path / "m.h5").exists()
 
 
+@pytest.mark.slow
 def test_interrupted_cli_sweep_keeps_its_blows_and_resumes(tmp_path):
     """Ctrl-C (SIGINT) mid-sweep: exit 130, the file readable and marked interrupted with
     every finished blow; --resume computes only the rest and the table is complete."""
@@ -355,6 +359,7 @@ def test_interrupted_cli_sweep_keeps_its_blows_and_resumes(tmp_path):
         assert f.attrs["status"] == "complete" and f["table/done"][:].all()
 
 
+@pytest.mark.slow
 def test_diagnose_and_fit_on_the_cluster_equal_local_processes(cluster, tmp_path):
     # issue 17: the same executor seam runs diagnose's candidate fits and fit's Jacobian
     # columns on a real 2-worker cluster; the results are those of local processes (the

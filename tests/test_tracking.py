@@ -58,6 +58,7 @@ def best_key(lrn, keys):
 
 @pytest.mark.parametrize("name", ["forte", "two-peak"])
 @pytest.mark.parametrize("variant", ["single", "step_size"])
+@pytest.mark.slow
 def test_learns_the_key_force_to_within_2_percent_in_five_trials(variant, name):
     p, lrn, keys, _ = learn(name, variant)
     best, k = best_key(lrn, keys)
@@ -70,6 +71,7 @@ def test_learns_the_key_force_to_within_2_percent_in_five_trials(variant, name):
 
 
 @pytest.mark.parametrize("name", ["forte", "two-peak"])
+@pytest.mark.slow
 def test_learns_the_asymmetric_drive_through_its_rise_fall_model(name):
     # the drive switches between the thesis's rise and fall models with the demand's
     # direction (issue 18's case a): a linear update did not learn it (forte 32.8 % ->
@@ -96,6 +98,7 @@ def test_the_linear_p_type_update_does_not_learn_the_asymmetric_drive():
 
 
 @pytest.mark.parametrize("variant", ["single", "asymmetric"])
+@pytest.mark.slow
 def test_piano_learning_does_not_make_the_key_force_worse(variant):
     # peak 1.2 N, 5x the load cell's noise: the error is mostly noise; the noise-aware update
     # learns only what stands out of it (averaging trials played with the same table)
@@ -108,6 +111,7 @@ def test_piano_learning_does_not_make_the_key_force_worse(variant):
     assert any("within the noise" in n for n in lrn.notes)
 
 
+@pytest.mark.slow
 def test_every_learned_table_is_within_the_limits():
     for variant in ("single", "asymmetric"):
         _, lrn, _, tables = learn("forte", variant)
@@ -134,6 +138,7 @@ def test_a_diverging_gain_is_stopped_and_the_best_trial_kept():
 
 
 @pytest.mark.parametrize("case", [{"noise": 2 * NOISE}, {"jitter": 0.001}, {"drift": 0.10}])
+@pytest.mark.slow
 def test_forte_learning_is_robust(case):
     # twice the noise, 1 ms jitter, the drive's gain drifting down 10 % over the 5 trials:
     # still learns (a later trial is the best) to within twice the nominal criteria
@@ -144,6 +149,7 @@ def test_forte_learning_is_robust(case):
     assert k["max_pct"] <= 4.0 and k["rms_pct"] <= 2.0
 
 
+@pytest.mark.slow
 def test_with_a_jittering_loop_the_plan_gives_way_to_the_newton_step():
     # 1 ms of write jitter (offline.play's lateness, as the loop records it): the plan's
     # sharp release (a 10 N dip) is what the timing moves most, so with the lateness given
@@ -165,6 +171,7 @@ def test_with_a_jittering_loop_the_plan_gives_way_to_the_newton_step():
     assert blind.jitter_s == 0.0 and "minimax plan" in blind.notes[-1]
 
 
+@pytest.mark.slow
 def test_timing_spread_matches_the_simulated_drive_with_late_writes():
     # bound.timing_spread (the lifted model's columns scaled by the lateness) against the
     # 2 kHz simulated drive (rig.sim_backend) whose writes come 0, 0.5 or 1 ms late, the
@@ -198,6 +205,7 @@ def test_timing_spread_matches_the_simulated_drive_with_late_writes():
     assert bound.timing_spread(plant.thesis_models()[0], d, HZ, 0.0).max() == 0.0
 
 
+@pytest.mark.slow
 def test_a_drifting_gain_is_re_estimated_and_extrapolated():
     _, lrn, _, _ = learn("forte", "single", drift=0.10)
     gains = [h["model_gain"] for h in lrn.history]
@@ -208,6 +216,7 @@ def test_a_drifting_gain_is_re_estimated_and_extrapolated():
                if "predicted_gain" in h)
 
 
+@pytest.mark.slow
 def test_load_cell_pi_with_learning_is_not_worse_than_learning_alone():
     # issue 18 case c: the PI compares the load cell with the profile (target_n), and the
     # update inverts the closed loop (LoadCellPI.lifted). The minimax plan is for the open
@@ -551,6 +560,7 @@ def test_refine_identifies_the_drives_dynamics_from_one_trial():
     assert g.model.fall.Tw == pytest.approx(true.fall.Tw, rel=0.1)
 
 
+@pytest.mark.slow
 def test_a_learner_with_wrong_models_identifies_the_drive_and_learns():
     # the learner's models 30 % slower and 10 % weaker than the (asymmetric) drive
     p, lrn, keys, _ = learn("two-peak", "asymmetric", models=_mismatched())
@@ -651,6 +661,7 @@ def test_rig_run_designs_its_pi_from_the_motor_calibration_and_records_it(tmp_pa
     assert len(seen) >= 2 and set(seen) == {rec_hash}   # the learner's copy and the loop's
 
 
+@pytest.mark.slow
 def test_a_nearly_noise_free_load_cell_does_not_make_the_rise_fall_inversion_chatter():
     # with almost no noise the discrepancy principle allows an almost exact inverse; the
     # Levenberg-Marquardt damping keeps each step where the rise/fall modes it assumed
@@ -698,6 +709,7 @@ def test_fixed_modes_bound_of_a_step_no_demand_can_follow():
     assert b.max_error_n == pytest.approx(b.dual_bound_n, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_best_demand_finds_the_modes_of_a_trackable_rise_fall_reference():
     from rig.control import bound, plant
 
@@ -746,6 +758,7 @@ def test_falling_runs_and_schedule():
                                   [True, False, False, True, False, True])
 
 
+@pytest.mark.slow
 def test_planned_finds_the_best_single_fall_schedule_of_a_brute_force_scan():
     # from the reference's fall and from two bad starts (falling too late and never rising
     # again; falling too early and briefly), the coordinate search reaches the best
@@ -833,6 +846,7 @@ def test_settle_makes_rounding_level_changes_exact_holds():
     np.testing.assert_array_equal(ilc.settle(np.r_[0.0, 1e-3, 2.0], 10.0), [0.0, 1e-3, 2.0])
 
 
+@pytest.mark.slow
 def test_the_learner_takes_the_plan_only_where_it_beats_the_newton_step():
     # asymmetric forte: the plan (the release falling, then braking) is taken and plays
     # better than the Newton steps alone (minimax=False); with load-cell feedback in the
