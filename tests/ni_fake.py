@@ -20,7 +20,10 @@ A counter counting a timebase terminal counts that oscillator's edges from its a
 trigger (mod 2**32, as the hardware's 32-bit counter). A start trigger ``/DevN/ai/StartTrigger``
 fires when a task with analog inputs on DevN starts (and, for a triggered task, when its
 own trigger fires). ``skip_ticks(n)`` makes the next hardware-timed single-point read wake
-``n`` sample clocks late (the software missed them).
+``n`` sample clocks late (the software missed them). The acquisition's reads return
+``ai_fill`` (broadcast to the (channels x samples) array, rows in the task's channel order)
+and ``ci_fill`` (one value or array for every counter, or a dict by task name), ``avail``
+samples being available.
 """
 
 from __future__ import annotations
@@ -120,7 +123,7 @@ class _Interpreter:
         self.first_edge_periods = 0   # sample clock's first edge this many periods after start
         self.digitizer = {"SC1Mod1": "Dev2"}   # SCXI module -> the card that digitizes it
         self.ai_fill: Any = 0.0      # what bridge reads return (broadcast to the array)
-        self.ci_fill: Any = 0.0      # what encoder reads return
+        self.ci_fill: Any = 0.0      # what encoder reads return (a dict: by task name)
         self.avail = 0
 
     # ---- helpers for tests ----
@@ -438,9 +441,11 @@ class _Interpreter:
         return read_array, num_samps_per_chan
 
     def read_counter_f64_ex(self, task, num_samps_per_chan, timeout, fill_mode, read_array):
-        self._rec("read_counter_f64_ex", task, num_samps_per_chan=num_samps_per_chan,
-                  timeout=timeout, fill_mode=fill_mode)
-        read_array[:] = self.ci_fill
+        t = self._rec("read_counter_f64_ex", task, num_samps_per_chan=num_samps_per_chan,
+                      timeout=timeout, fill_mode=fill_mode)
+        assert t is not None
+        fill = self.ci_fill
+        read_array[:] = fill[t.name] if isinstance(fill, dict) else fill
         return read_array, num_samps_per_chan
 
     # ---- properties: every get/set/reset of an attribute, recorded with its id ----

@@ -18,14 +18,11 @@ import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
-from unittest import mock
 
-import nidaqmx
 import numpy as np
 import pytest
 import yaml
-from nidaqmx.stream_readers import AnalogMultiChannelReader, CounterReader
-from test_daq_ni import TASKS, by_name, fake_task  # autospecs of nidaqmx's real classes
+from ni_fake import FakeInterpreter  # nidaqmx's own classes, the DAQmx calls recorded
 
 from rig import calrecords, config, runfile
 from rig.ni_backend.daq import NiReader
@@ -117,39 +114,43 @@ def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
 
 
 def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) -> None:
-    TASKS.clear()
     edited = edited_table(shadow)
     monkeypatch.setattr(calrecords, "SENSOR_TABLE", edited.SENSOR_TABLE)
-    monkeypatch.setattr(nidaqmx, "Task", fake_task)
-    readers = {}
-    for name, cls in (("AnalogMultiChannelReader", AnalogMultiChannelReader),
-                      ("CounterReader", CounterReader)):
-        readers[name] = mock.create_autospec(cls)
-        monkeypatch.setattr(nidaqmx.stream_readers, name, readers[name])
+    _, block = guide()
+    physical = re.search(r'add_ai_voltage_chan\(\s*"([^"]+)"', block)
+    assert physical, "the guide's sensor is an analog input of the bridges' task"
     cfg = config.from_mapping({"backend": "ni", "drive": {"port": "/dev/ttyS0"}})
     names = calrecords.raw_names(cfg)
     new = calrecords.sensors(cfg)[-1]
     assert names[-1] == new.raw
-    r = NiReader({"config": cfg.model_dump(mode="json")})
-    ai = by_name("rig-bridges")
-    ai.ai_channels.add_ai_voltage_chan.assert_called_once()
-    type(ai.in_stream).avail_samp_per_chan = mock.PropertyMock(return_value=2)
-    n_ai = sum(not s.ni_counter for s in calrecords.sensors(cfg))
-
-    def fill_ai(data, number_of_samples_per_channel, timeout):
-        data[:] = [[0.215] * 2 if j == n_ai - 1 else [1e-4] * 2 for j in range(n_ai)]
-        return 2
-
-    def fill_ci(data, number_of_samples_per_channel, timeout):
-        data[:] = [7, 8]
-        return 2
-
-    readers["AnalogMultiChannelReader"].return_value.read_many_sample.side_effect = fill_ai
-    readers["CounterReader"].return_value.read_many_sample_double.side_effect = fill_ci
-    rows = r.read(0.0)
+    fake = FakeInterpreter()
+    with fake.installed():
+        r = NiReader({"config": cfg.model_dump(mode="json")})
+        try:
+            # its DAQmx channel, on the bridges' task, under its sensor's name
+            adds = fake.of("create_ai_voltage_chan", "rig-bridges")
+            assert len(adds) == 1
+            assert adds[0].args["physical_channel"] == physical.group(1)
+            assert adds[0].args["name_to_assign_to_channel"] == new.name
+            assert (adds[0].args["min_val"], adds[0].args["max_val"]) == (0.0, 1.0)
+            ai_chans = [c.name for c in fake.task("rig-bridges").chans]
+            assert ai_chans == ["load_cell", "strain_gauge", new.name]
+            r.start()
+            # the driver's rows come in the task's channel order, each its own value
+            fake.avail = 2
+            volts = {"load_cell": 1e-4, "strain_gauge": 2e-5, new.name: 0.215}
+            fake.ai_fill = np.array([[volts[c]] for c in ai_chans])
+            counts = {"key": [3.0, 4.0], "whippen": [5.0, 6.0], "hammer": [7.0, 8.0]}
+            fake.ci_fill = {f"rig-encoder-{k}": np.array(v) for k, v in counts.items()}
+            rows = r.read(0.0)
+        finally:
+            r.close()
+    assert all(t.closed for t in fake.tasks.values())
     assert rows.shape == (2, len(names))
     assert list(rows[:, names.index(new.raw)]) == [0.215, 0.215]
-    assert list(rows[:, names.index("hammer_counts")]) == [7, 8]
+    assert list(rows[:, names.index("load_cell_ratio")]) == [1e-4, 1e-4]
+    assert list(rows[:, names.index("strain_ratio")]) == [2e-5, 2e-5]
+    for k, v in counts.items():
+        assert list(rows[:, names.index(f"{k}_counts")]) == v
     out = calrecords.convert(rows, cfg, calrecords.nominal(cfg))
     assert out[new.channel] == pytest.approx([21.5, 21.5])
-    r.close()

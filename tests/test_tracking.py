@@ -344,45 +344,60 @@ def test_a_record_is_found_only_for_the_same_profile_rig_and_motor_calibration(t
         assert records.find(cfg, p, []) is None            # an altered record is not used
 
 
-def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback(monkeypatch):
-    # the loop's cycle as rig run does it (feedforward hook, controller hook, limiter,
-    # volts, write) on the NI backend through autospecs of nidaqmx (tests/test_daq_ni.py)
-    import test_daq_ni as tni
+def test_the_ni_path_plays_a_learned_table_with_load_cell_feedback():
+    # the loop's cycle as rig run does it (tick, feedforward hook, controller hook, limiter,
+    # volts, write) on the NI backend: nidaqmx's own classes on the recording fake
+    # interpreter of tests/ni_fake.py, the DAQmx writes asserted
+    from ni_fake import FakeInterpreter
 
     from rig import loadcell, motor_torque
     from rig.control import records
 
-    readers = tni.ni.__wrapped__(monkeypatch)
-    cfg = tni.ni_config()
+    cfg = config.from_mapping({"backend": "ni", "drive": {"port": "/dev/ttyS0"}})
+    out = cfg.channels.drive_output.physical_channel
     p, r, u0 = grid("forte")
     err = {"max_pct": 2.0, "rms_pct": 0.5, "max_n": 0.6, "rms_n": 0.15, "trial": 1.0}
     rec = records.build(cfg, p, [], u0, [err], err, {}, None)
     ff, _ = records.demand_source(rec)
     ctl = feedback.LoadCellPI()
-    d = backends.open_daq(cfg)
-    try:
-        d.arm()
-        reader = backends.open_reader(d.reader_spec())
-        lc = cfg.channels.load_cell
-        sens = loadcell.nominal_sensitivity(lc)
-        limiter = motor_torque.Limiter(cfg.limits, 1 / HZ)
-        scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
-                                                         cfg.channels.drive_output)
-        ctl.reset()
-        writer = readers["writer"].return_value
-        for j in range(60):
-            reader.publish_feedback(4 * j, sens * 0.5 * u0[j])  # the key at half the demand
-            _, ratio = d.feedback_ratio()
-            measured = float(loadcell.to_newtons(ratio, sens, 0.0))
-            demand, _ = limiter(ctl(j / HZ, ff(p, j / HZ), measured))
-            d.write_volts(scaling.volts(demand))
-            assert writer.write_one_sample.call_args.args[0] == pytest.approx(
-                scaling.volts(demand))
-        assert demand > u0[59]   # the PI pushes harder than the table when the key lags
-        reader.close()
-    finally:
-        d.close()
-    writer.write_one_sample.assert_called_with(0.0, timeout=1.0)
+    fake = FakeInterpreter()
+    with fake.installed():
+        d = backends.open_daq(cfg)
+        try:
+            d.arm()
+            reader = backends.open_reader(d.reader_spec())
+            try:
+                reader.start()
+                lc = cfg.channels.load_cell
+                sens = loadcell.nominal_sensitivity(lc)
+                limiter = motor_torque.Limiter(cfg.limits, 1 / HZ)
+                scaling = motor_torque.TorqueScaling.from_config(cfg.drive_scaling,
+                                                                 cfg.channels.drive_output)
+                ctl.reset()
+                for j in range(60):
+                    tick = d.wait_for_tick()
+                    assert (tick.index, tick.missed) == (j, 0)
+                    reader.publish_feedback(4 * j, sens * 0.5 * u0[j])  # the key at half
+                    _, ratio = d.feedback_ratio()
+                    measured = float(loadcell.to_newtons(ratio, sens, 0.0))
+                    demand, _ = limiter(ctl(j / HZ, ff(p, j / HZ), measured))
+                    before = len(fake.of("write_analog_scalar_f64"))
+                    d.write_volts(scaling.volts(demand))
+                    writes = fake.of("write_analog_scalar_f64")
+                    assert len(writes) == before + 1    # one write a cycle, on the loop's task
+                    assert writes[-1].task == "rig-drive"
+                    assert writes[-1].args["value"] == pytest.approx(scaling.volts(demand))
+                    assert writes[-1].args["timeout"] == pytest.approx(1 / HZ)
+                    assert fake.ao[out] == pytest.approx(scaling.volts(demand))
+                assert demand > u0[59]   # the PI pushes harder than the table when the key lags
+                assert fake.ao[out] != 0.0
+            finally:
+                reader.close()
+        finally:
+            d.close()
+    last = fake.of("write_analog_scalar_f64")[-1]
+    assert (last.task, last.args["value"], last.args["timeout"]) == ("rig-drive", 0.0, 1.0)
+    assert fake.ao[out] == 0.0 and all(t.closed for t in fake.tasks.values())
 
 
 @pytest.mark.slow
