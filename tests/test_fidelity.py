@@ -8,10 +8,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = {"quantity", "thesis", "section", "model", "deviation", "tolerance", "ok"}
 
 
+@pytest.mark.slow
+@pytest.mark.interpreter
 def test_fidelity_table_rows():
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "fidelity.py"), "--json"],
                          capture_output=True, text=True, timeout=600, check=True,

@@ -109,6 +109,7 @@ def test_plot_bad_input_names_the_field(measured: Path, tmp_path: Path, args: li
     assert sorted(tmp_path.iterdir()) == before  # nothing written
 
 
+@pytest.mark.browser
 def test_plot_html_in_a_subprocess_renders_in_chromium(measured: Path, tmp_path: Path) -> None:
     env = dict(os.environ)
     r = subprocess.run([sys.executable, "-m", "rig", "plot", str(measured), "--window",

@@ -178,6 +178,7 @@ def test_ctrl_c_mid_blow_zeroes_demand_and_aborts(tmp_path: Path) -> None:
     assert first > 0
 
 
+@pytest.mark.slow
 def test_drive_fault_aborts(tmp_path: Path) -> None:
     seen = {}
 
@@ -192,6 +193,7 @@ def test_drive_fault_aborts(tmp_path: Path) -> None:
     assert tr.commands["time"][-1] <= seen["t"] + 0.004
 
 
+@pytest.mark.slow
 def test_killed_acquisition_process_aborts_with_data_so_far(tmp_path: Path) -> None:
     seen = {}
 
@@ -262,6 +264,7 @@ def test_trials_into_one_file_with_repeatability(tmp_path: Path) -> None:
     assert rep.repeatability == r
 
 
+@pytest.mark.slow
 def test_cli_first_and_last_lines(tmp_path: Path, monkeypatch) -> None:
     rig_file = tmp_path / "bench.yaml"
     rig_file.write_text(sim_cfg(tmp_path).to_yaml())

@@ -736,6 +736,7 @@ def test_best_demand_finds_the_modes_of_a_trackable_rise_fall_reference():
     assert wrong.max_error_n > 0.1
 
 
+@pytest.mark.slow
 def test_no_release_with_one_mode_switch_reaches_2_percent_on_forte():
     # the offline bound (benchmarks/tracking_bound.py): with the rise/fall drive, any
     # demand that rises and then falls (one mode switch, from any cycle around the release)
