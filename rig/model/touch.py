@@ -2,10 +2,14 @@
 
 Figures (docs/touch.md has the definitions and the method):
 
-- ``down_weight``: the least static weight at the key front that takes the key down through
-  the touch stroke, every joint's and contact's friction opposing the descent;
-- ``up_weight``: the most weight at which the key still returns through the stroke,
-  friction opposing the return;
+- ``down_weight``: the least static weight at the key front that keeps the key going down
+  through the middle of the touch stroke, every joint's and contact's friction opposing
+  the descent;
+- ``up_weight``: the most weight at which the key still comes up through the middle of the
+  stroke, friction opposing the return;
+- ``down_weight_stroke`` / ``up_weight_stroke``: the same over the whole touch stroke (the
+  largest down force, the smallest up force): the weights that carry the key all the way
+  down, and let it return all the way up;
 - ``balance_weight`` (DW + UW) / 2 and ``friction`` (DW - UW) / 2;
 - ``strike_weight``: the hammer's weight at its strike point (pivot -> striking-felt centre
   level, centre pin supported), and ``hammer_mass``;
@@ -41,19 +45,26 @@ STEP_M = 2.5e-4  # key-front dip between the stroke's points
 FIRST_M = 2.5e-4  # the stroke's first point: the key off its back felt, the hammer off its rail
 MAX_DIP_M = 0.02  # no stroke goes past this even without a stop
 PRESS_SPEED = 1e-6  # m/s at the key front: the press's speed (inertia and damping vanish)
+# a pin turning slower than this fraction of the key (per key-front dip) turns only as the
+# felts around it compress (the jack and repetition lever on the whippen before let-off):
+# it sticks, and its friction does no work
+STICK_FRACTION = 0.05
 SHRINK = 1e-9  # the friction laws' threshold speeds times this: sliding (Coulomb) limit
 # contacts that end the touch stroke when they close (ids of rig/data/action-parameters.yaml)
 STROKE_STOPS = {2: "key meets the front punching", 8: "jack toe meets the let-off button",
                 11: "repetition lever meets the drop screw"}
 # contacts that must be open at the stroke's start (rest supports the press lifts off)
 REST_SUPPORTS = {3: "key back felt", 13: "hammer rest rail"}
-FIGURES = ("down_weight", "up_weight", "balance_weight", "friction", "strike_weight",
-           "hammer_mass", "front_weight", "key_ratio", "action_ratio")
+FIGURES = ("down_weight", "up_weight", "balance_weight", "friction", "down_weight_stroke",
+           "up_weight_stroke", "strike_weight", "hammer_mass", "front_weight", "key_ratio",
+           "action_ratio")
 FIGURE_DOCS = {
-    "down_weight": "least weight at the key front that takes the key down through the touch "
-                   "stroke (friction opposing)",
-    "up_weight": "most weight at the key front at which the key still returns through the "
-                 "stroke (friction opposing)",
+    "down_weight": "least weight at the key front that keeps the key going down, mid-stroke "
+                   "(friction opposing)",
+    "up_weight": "most weight at the key front at which the key still comes up, mid-stroke "
+                 "(friction opposing)",
+    "down_weight_stroke": "least weight that takes the key down through the whole touch stroke",
+    "up_weight_stroke": "most weight at which the key returns through the whole touch stroke",
     "balance_weight": "(down-weight + up-weight) / 2",
     "friction": "(down-weight - up-weight) / 2",
     "strike_weight": "hammer's weight at its strike point, line pivot -> striking felt level",
@@ -62,7 +73,8 @@ FIGURE_DOCS = {
     "key_ratio": "capstan contact's horizontal arm / key front's, about the balance pin",
     "action_ratio": "strike-point rise per key-front dip over the touch stroke",
 }
-UNITS = {"down_weight": "g", "up_weight": "g", "balance_weight": "g", "friction": "g",
+UNITS = {"down_weight": "g", "up_weight": "g", "down_weight_stroke": "g",
+         "up_weight_stroke": "g", "balance_weight": "g", "friction": "g",
          "strike_weight": "g", "hammer_mass": "g", "front_weight": "g", "key_ratio": "1",
          "action_ratio": "1"}
 HAMMER_FRAMES = (6, 7)  # kernel frames F_HAMMER, F_HEAD (the hammer's bodies)
@@ -80,7 +92,7 @@ class Touch:
     frictionless_n: np.ndarray   # key force in equilibrium with friction removed (N)
     stroke_end: str              # what ended the stroke
     key_front_radius_m: float    # horizontal arm of the key front about the balance pin, rest
-    friction_shares_g: dict[str, float] = field(default_factory=dict)  # down press, stroke start
+    friction_shares_g: dict[str, float] = field(default_factory=dict)  # down press, mid-stroke
     method: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -127,6 +139,14 @@ class _Statics:
         self.keytop_rest = self.keytop_y(self.rest)
         self.dy = np.zeros(k.NY)
         self.ids = list(model.packed.contact_ids)
+        # the striking felt's centre in the head frame and the strain gauge (as ActionModel)
+        tree = model.build.params.tree
+        from rig.model.action import HEAD_STRIKE_POINT
+
+        self.head_pt = np.array(tree["points"]["hammer_head"][HEAD_STRIKE_POINT]["at"], float)
+        beam = tree["hammer_shank_beam"]
+        self.gauge = np.array([beam["length"] - beam["strain_gauge_at"][0],
+                               beam["strain_gauge_at"][1]])
 
     def _arrays(self, base: Any, friction: bool) -> Any:
         k = self.k
@@ -194,8 +214,8 @@ class _Statics:
         k, m = self.k, self.model
         xo = np.zeros((k.N_X, 1))
         co = np.zeros((k.N_CONTACT_OUT, 1, m.packed.n_contacts))
-        k.sample_outputs(arrays, self.ws, y[None, :], np.array([force]), m._head_pt, m._gauge,
-                         xo, co)
+        k.sample_outputs(arrays, self.ws, y[None, :], np.array([force]), self.head_pt,
+                         self.gauge, xo, co)
         return co[:, 0, :]
 
     def strike_point(self, y: np.ndarray) -> tuple[float, float]:
@@ -203,7 +223,7 @@ class _Statics:
         k.kinematics(y[: k.NQ], y[k.NQ : k.NY], self.model.packed.arrays.sp,
                      self.model.packed.arrays.sec_xi, ws.org, ws.phi, ws.w, ws.vO, ws.JO,
                      ws.Jp, ws.aO, ws.al, ws.cs)
-        hx, hy = self.model._head_pt
+        hx, hy = self.head_pt
         c, s = ws.cs[k.F_HEAD]
         return (float(ws.org[k.F_HEAD, 0] + c * hx - s * hy),
                 float(ws.org[k.F_HEAD, 1] + s * hx + c * hy))
@@ -286,22 +306,27 @@ def measure(model: ActionModel) -> Touch:
                          f"{end})")
     dip = np.array(dips)
     states = np.array(path)
+    mid = int(np.argmin(np.abs(dip - (dip[0] + dip[-1]) / 2)))  # the middle of the stroke
     tangent = np.gradient(states[:, : k.NQ], dip, axis=0)  # dq / d(dip)
     down, up = np.empty(len(dip)), np.empty(len(dip))
-    yd, yu, fd, fu = states[0].copy(), states[0].copy(), forces[0], forces[0]
+    yd, yu, fd, fu, f_prev = states[0].copy(), states[0].copy(), forces[0], forces[0], forces[0]
     worst = 0.0
     for i in range(len(dip)):
-        v = np.r_[tangent[i] * PRESS_SPEED, np.zeros(k.NQ)][: k.NQ]
-        yd, fd, ed = st.solve(dip[i], states[i], fd, st.sliding, v)
-        yu, fu, eu = st.solve(dip[i], states[i], fu, st.sliding, -v)
+        v = tangent[i] * PRESS_SPEED
+        for c in k.JOINT_COORD[1:]:  # pins that turn only as the felts give: stuck
+            if abs(tangent[i, c]) < STICK_FRACTION * abs(tangent[i, k.QK]):
+                v[c] = 0.0
+        yd, fd, ed = _solve_from(st, dip[i], (states[i], yd), forces[i] + fd - f_prev, v)
+        yu, fu, eu = _solve_from(st, dip[i], (states[i], yu), forces[i] + fu - f_prev, -v)
+        f_prev = forces[i]
         down[i], up[i] = fd, fu
         worst = max(worst, ed, eu)
-        if i == 0:
+        if i == mid:
             shares = _friction_shares(st, yd, fd)
     if worst > 1e-6:
         raise InputError(f"model: no quasi-static equilibrium with friction "
                          f"(residual {worst:.1e}); the touch figures are undefined")
-    dw, uw = float(down.max()), float(up.min())
+    dw, uw = float(down[mid]), float(up[mid])
     sw, hammer_mass = _strike_weight(st)
     # the key's own weight turns its front down (clockwise): that moment over the front's arm
     fw = -_moment(st, rest, k.QK) / r_front
@@ -312,7 +337,8 @@ def measure(model: ActionModel) -> Touch:
     s0 = st.strike_point(states[0])[1]
     s1 = st.strike_point(states[-1])[1]
     newtons = {"down_weight": dw, "up_weight": uw, "balance_weight": (dw + uw) / 2,
-               "friction": (dw - uw) / 2, "strike_weight": sw, "front_weight": fw}
+               "friction": (dw - uw) / 2, "down_weight_stroke": float(down.max()),
+               "up_weight_stroke": float(up.min()), "strike_weight": sw, "front_weight": fw}
     figures = {n: grams(v) for n, v in newtons.items()}
     figures["hammer_mass"] = hammer_mass * 1e3
     figures["key_ratio"] = key_ratio
@@ -324,8 +350,24 @@ def measure(model: ActionModel) -> Touch:
                  method={"g0_m_s2": G0, "model_gravity_m_s2": g, "step_m": STEP_M,
                          "first_m": FIRST_M, "press_speed_m_s": PRESS_SPEED,
                          "threshold_factor": SHRINK, "worst_residual": worst,
-                         "down_at_dip_m": float(dip[int(np.argmax(down))]),
-                         "up_at_dip_m": float(dip[int(np.argmin(up))])})
+                         "mid_stroke_dip_m": float(dip[mid]),
+                         "down_stroke_at_dip_m": float(dip[int(np.argmax(down))]),
+                         "up_stroke_at_dip_m": float(dip[int(np.argmin(up))])})
+
+
+def _solve_from(st: _Statics, dip: float, guesses: tuple[np.ndarray, ...], f0: float,
+                qd: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The sliding equilibrium at ``dip`` from the first guess that converges (the
+    frictionless state there, then the previous point's sliding state)."""
+    best: tuple[np.ndarray, float, float] | None = None
+    for guess in guesses:
+        got = st.solve(dip, guess, f0, st.sliding, qd)
+        if best is None or got[2] < best[2]:
+            best = got
+        if got[2] <= 1e-9:
+            break
+    assert best is not None
+    return best
 
 
 def _friction_shares(st: _Statics, y: np.ndarray, force: float) -> dict[str, float]:
