@@ -211,3 +211,29 @@ def test_cli_prints_and_emits_json(tmp_path, base):
     refused = _rig("touch", "--model", str(bad))
     assert refused.returncode == 2
     assert str(bad.name) in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
+    """rig sweep --touch: each row's model gives its touch weights beside the blow's metrics;
+    a heavier hammer head raises the down- and up-weight and the strike weight."""
+    from rig import profiles
+    from rig.analysis import sweep as sw
+
+    axes = [sw.Axis.parse("bodies.hammer_head.mass=0.007:0.009")]
+    study = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
+                            axes, duration=0.02, touch=True)
+    names = [m.name for m in study.metrics]
+    assert names[-len(sw.TOUCH_METRICS):] == [m.name for m in sw.TOUCH_METRICS]
+    light = dict(zip(names, study.fn(study.shared, np.array([0.007])), strict=True))
+    heavy = dict(zip(names, study.fn(study.shared, np.array([0.009])), strict=True))
+    for name in ("down_weight_g", "up_weight_g", "balance_weight_g", "strike_weight_g"):
+        assert heavy[name] > light[name] + 0.5, name
+    assert heavy["front_weight_g"] == pytest.approx(light["front_weight_g"])
+    # the row's figures are rig touch's of the same model
+    m = ActionModel(Parameters.default().set("bodies.hammer_head.mass", 0.009))
+    assert heavy["down_weight_g"] == pytest.approx(touch.measure(m).figures["down_weight"])
+    # without --touch the study is as before
+    plain = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
+                            axes, duration=0.02)
+    assert [m.name for m in plain.metrics] == [m.name for m in sw.ACTION_METRICS]
