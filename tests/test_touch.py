@@ -201,6 +201,12 @@ def test_cli_prints_and_emits_json(tmp_path, base):
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert doc["schema"] == "rig.touch/1"
+    jsonschema = pytest.importorskip("jsonschema")
+    import re
+
+    text = (ROOT / "docs" / "json.md").read_text()
+    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
+    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.touch/1"))
     assert doc["figures"]["down_weight"]["value"] == pytest.approx(base.figures["down_weight"])
     assert doc["figures"]["down_weight"]["newtons"] == pytest.approx(base.newtons["down_weight"])
     text = _rig("touch")
