@@ -243,3 +243,31 @@ def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
     plain = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
                             axes, duration=0.02)
     assert [m.name for m in plain.metrics] == [m.name for m in sw.ACTION_METRICS]
+
+
+@pytest.mark.slow
+def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
+    """The dynamic answer: a slow force ramp (0 -> 70 g in 4 s) on the model whose friction
+    thresholds are lowered so that its regularised laws act nearly as Coulomb friction at
+    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force just
+    under the static down force there, and closer to it the lower the thresholds."""
+    from rig import profiles
+
+    ramp = profiles.from_points([[0.0, 0.0], [4.0, 0.070 * touch.G0]], name="ramp")
+    gaps = []
+    shipped = touch.measure(ActionModel()).figures["down_weight_stroke"]
+    for vt, wt in ((5e-4, 5e-3), (1e-4, 1e-3)):
+        p = Parameters.default()
+        for c in (1, 4, 7, 10):
+            p.set(f"friction_threshold.contact_vt.{c}", vt)
+        for j in ("key", "whippen", "jack", "repetition", "hammer"):
+            p.set(f"friction_threshold.joint_wt.{j}", wt)
+        model = ActionModel(p)
+        static = touch.measure(model)
+        # the static figures are the sliding limit: the thresholds do not move them
+        assert static.figures["down_weight_stroke"] == pytest.approx(shipped, abs=0.05)
+        res = model.simulate(ramp)
+        i = int(np.argmax(res.channels["key_dip"] > static.dip_m[0]))
+        gaps.append(static.down_n[0] - res.channels["force"][i])
+    assert 0 < gaps[1] < gaps[0]
+    assert touch.grams(gaps[1]) < 2.0
