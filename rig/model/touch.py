@@ -310,7 +310,7 @@ def measure(model: ActionModel) -> Touch:
     tangent = np.gradient(states[:, : k.NQ], dip, axis=0)  # dq / d(dip)
     down, up = np.empty(len(dip)), np.empty(len(dip))
     yd, yu, fd, fu, f_prev = states[0].copy(), states[0].copy(), forces[0], forces[0], forces[0]
-    worst = 0.0
+    worst, failed = 0.0, ""
     for i in range(len(dip)):
         v = tangent[i] * PRESS_SPEED
         for c in k.JOINT_COORD[1:]:  # pins that turn only as the felts give: stuck
@@ -321,11 +321,14 @@ def measure(model: ActionModel) -> Touch:
         f_prev = forces[i]
         down[i], up[i] = fd, fu
         worst = max(worst, ed, eu)
+        if not failed and max(ed, eu) > 1e-6:
+            failed = _why(st, states[i], yd if ed > 1e-6 else yu, fd if ed > 1e-6 else fu,
+                          dip[i], "down" if ed > 1e-6 else "up")
         if i == mid:
             shares = _friction_shares(st, yd, fd)
     if worst > 1e-6:
-        raise InputError(f"model: no quasi-static equilibrium with friction "
-                         f"(residual {worst:.1e}); the touch figures are undefined")
+        raise InputError(f"model: {failed}: no quasi-static equilibrium with every friction "
+                         f"at its sliding limit, so the touch weights are undefined")
     dw, uw = float(down[mid]), float(up[mid])
     sw, hammer_mass = _strike_weight(st)
     # the key's own weight turns its front down (clockwise): that moment over the front's arm
@@ -368,6 +371,18 @@ def _solve_from(st: _Statics, dip: float, guesses: tuple[np.ndarray, ...], f0: f
             break
     assert best is not None
     return best
+
+
+def _why(st: _Statics, path: np.ndarray, y: np.ndarray, force: float, dip: float,
+         way: str) -> str:
+    """Where a sliding equilibrium failed, and which contact let go (if one did)."""
+    k = st.k
+    held = st.outputs(path, st.frictionless)[k.O_FN] > 0
+    now = st.outputs(y, st.sliding, force)[k.O_FN] > 0
+    names = st.model.packed.contact_names
+    opened = [f"contact {st.ids[i]} ({names[i]})" for i in np.flatnonzero(held & ~now)]
+    where = f"{way} press at {dip * 1e3:.2f} mm of key-front dip"
+    return f"{where}, {opened[0]} opens under friction" if opened else where
 
 
 def _friction_shares(st: _Statics, y: np.ndarray, force: float) -> dict[str, float]:
