@@ -271,3 +271,12 @@ def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
         gaps.append(static.down_n[0] - res.channels["force"][i])
     assert 0 < gaps[1] < gaps[0]
     assert touch.grams(gaps[1]) < 2.0
+
+
+@pytest.mark.slow
+def test_no_sliding_equilibrium_is_refused_naming_the_contact():
+    """A heavier hammer and more knuckle friction: on the return the knuckle's friction turns
+    the jack off its whippen stop; rig touch says where instead of printing a number."""
+    with pytest.raises(InputError, match=r"up press at [0-9.]+ mm .*contact 5 \(whippen-jack\) "
+                                         r"opens"):
+        touch.measure(model_with({"bodies.hammer_head.mass": 0.009, "contacts.7.A": 0.2}))
