@@ -365,7 +365,7 @@ def touch(
                       markup=False, highlight=False, soft_wrap=True)
     console.print(f"key front: {res.key_front_radius_m * 1e3:.1f} mm from the balance pin; "
                   f"stroke {res.dip_m[0] * 1e3:.2f}-{res.dip_m[-1] * 1e3:.2f} mm of key-front "
-                  f"dip, ended where the {res.stroke_end}", markup=False, highlight=False,
+                  f"dip, ended by: {res.stroke_end}", markup=False, highlight=False,
                   soft_wrap=True)
     console.print(f"mid-stroke: {res.method['mid_stroke_dip_m'] * 1e3:.2f} mm; weights are "
                   f"grams-force (N / {tm.G0} x 1000)", markup=False, highlight=False,

@@ -280,3 +280,13 @@ def test_no_sliding_equilibrium_is_refused_naming_the_contact():
     with pytest.raises(InputError, match=r"up press at [0-9.]+ mm .*contact 5 \(whippen-jack\) "
                                          r"opens"):
         touch.measure(model_with({"bodies.hammer_head.mass": 0.009, "contacts.7.A": 0.2}))
+
+
+@pytest.mark.slow
+def test_flexible_shank_statics_match_the_rigid_ones(base):
+    """The shank's bending coordinates enter the solve (their own scale); statically they bend
+    by micrometres, so the weights are the rigid model's."""
+    flex = touch.measure(ActionModel(effects=["flexible_shank"]))
+    for name in ("down_weight", "up_weight", "down_weight_stroke", "up_weight_stroke"):
+        assert flex.figures[name] == pytest.approx(base.figures[name], abs=0.05), name
+    assert flex.stroke_end == base.stroke_end

@@ -129,6 +129,9 @@ class _Statics:
         self.ws = model.workspace()
         self.extra = model.extra_force()
         self.coords = np.array([i for i in np.flatnonzero(model.active) if i != k.QZ])
+        # each coordinate's size in the integrator's terms (the shank's bending coordinates
+        # are 1e3-1e4 times an angle's): the solver's variable scaling, the residual's units
+        self.scale = model.atol[self.coords] / model.atol[k.QK]
         base = model.packed.arrays
         self.sliding = self._arrays(base, friction=True)
         self.frictionless = self._arrays(base, friction=False)
@@ -203,8 +206,10 @@ class _Statics:
         # start from the guess turned to the target dip
         x0 = np.r_[guess[c], f0]
         x0[list(c).index(k.QK)] += (target - self.keytop_y(guess)) / self.front_radius(guess)
-        sol = root(residual, x0, method="hybr", options={"xtol": 1e-13})
+        sol = root(residual, x0, method="hybr",
+                   options={"xtol": 1e-13, "diag": np.r_[1.0 / self.scale, 1.0]})
         r = residual(sol.x)
+        r[:-1] /= self.scale
         ws.qx[:] = 0.0
         y[c] = sol.x[:-1]
         return y.copy(), float(sol.x[-1]), float(np.max(np.abs(r)))
@@ -281,15 +286,16 @@ def measure(model: ActionModel) -> Touch:
     stops = {st.ids.index(cid): why for cid, why in STROKE_STOPS.items() if cid in st.ids}
     d = FIRST_M
     while d <= MAX_DIP_M + 1e-12:
-        y, f, err = st.solve(d, y, f, st.frictionless)
+        y_new, f_new, err = st.solve(d, y, f, st.frictionless)
+        pen = st.outputs(y_new, st.frictionless)[k.O_PEN]
+        closed = [why for i, why in stops.items() if pen[i] > 0]
+        if closed:  # (a stop closing can also be what the solver failed at)
+            end = closed[0]
+            break
         if err > 1e-6:
             end = f"no equilibrium at {d * 1e3:.2f} mm"
             break
-        pen = st.outputs(y, st.frictionless)[k.O_PEN]
-        closed = [why for i, why in stops.items() if pen[i] > 0]
-        if closed:
-            end = closed[0]
-            break
+        y, f = y_new, f_new
         if not dips:
             held = [why for cid, why in REST_SUPPORTS.items()
                     if cid in st.ids and pen[st.ids.index(cid)] > 0]
