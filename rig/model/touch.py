@@ -261,8 +261,9 @@ def _strike_weight(st: _Statics) -> tuple[float, float]:
     y[k.QH] -= angle  # turn the hammer until the line is level
     sx, sy = st.strike_point(y)
     length = math.hypot(sx - px, sy - py)
-    moment = _moment(st, y, k.QH)  # counter-clockwise; the head's weight turns it clockwise
-    side = 1.0 if sx > px else -1.0  # strike point right of the pivot: weight turns it cw
+    moment = _moment(st, y, k.QH)  # counter-clockwise positive
+    # a strike point right of the pivot is pulled down clockwise by the hammer's weight
+    side = 1.0 if sx > px else -1.0
     me = model.packed.arrays.me
     mass = float(sum(me[i, 1] for i in range(me.shape[0]) if int(me[i, 0]) in HAMMER_FRAMES))
     if model.build.flags["flexible_shank"]:
@@ -400,7 +401,7 @@ def _friction_shares(st: _Statics, y: np.ndarray, force: float) -> dict[str, flo
     for i, name in enumerate(m.packed.contact_names):
         p = abs(co[k.O_FT, i] * co[k.O_SLIP, i])
         if p > 0:
-            out[f"contact {st.ids[i]} ({name})"] = grams(p / PRESS_SPEED)
+            out[f"contact {st.ids[i]} ({name})"] = float(grams(p / PRESS_SPEED))
     jf = st.sliding.jf
     for j, (coord, name) in enumerate(zip(k.JOINT_COORD, ("key", "whippen", "jack", "repetition",
                                                           "hammer", "key pin slider"),
@@ -408,5 +409,5 @@ def _friction_shares(st: _Statics, y: np.ndarray, force: float) -> dict[str, flo
         w = y[k.NQ + coord]
         if jf[j, 0] > 0 and w != 0 and m.active[coord]:
             torque = k.joint_torque(w, jf[j, 0], jf[j, 1], jf[j, 2], jf[j, 3])
-            out[f"{name} pin"] = grams(abs(torque * w) / PRESS_SPEED)
+            out[f"{name} pin"] = float(grams(abs(torque * w) / PRESS_SPEED))
     return out
