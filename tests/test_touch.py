@@ -116,6 +116,18 @@ def test_key_front_lead_moves_balance_by_its_moment(base):
     assert leaded.figures["friction"] == pytest.approx(base.figures["friction"], abs=0.03)
     assert leaded.figures["front_weight"] - base.figures["front_weight"] == pytest.approx(
         expected, abs=1e-3)
+    assert leaded.figures["inertia_mass"] > base.figures["inertia_mass"]
+
+
+def test_key_inertia_is_felt_through_the_front_arm_squared(base):
+    """More moment of inertia of the key (statics unchanged): the mass felt at the key front
+    grows by it over the key front's arm squared (the arm at rest; 0.5 % shorter than
+    mid-stroke's)."""
+    added = 1e-3  # kg m^2
+    heavier = touch.measure(model_with({"bodies.key.inertia": 2.75e-3 + added}))
+    assert heavier.figures["down_weight"] == pytest.approx(base.figures["down_weight"])
+    assert heavier.figures["inertia_mass"] - base.figures["inertia_mass"] == pytest.approx(
+        added / base.key_front_radius_m**2 * 1e3, rel=0.01)
 
 
 def test_heavier_hammer_raises_weights_by_the_geometry(frictionless, base):
@@ -130,16 +142,22 @@ def test_heavier_hammer_raises_weights_by_the_geometry(frictionless, base):
     ws = model.workspace()
     cx, cy = model.params.tree["bodies"]["hammer_head"]["com"]
 
-    def head_com_y(y: np.ndarray) -> float:
+    def head_com(y: np.ndarray) -> np.ndarray:
         a = model.packed.arrays
         k.kinematics(y[: k.NQ], y[k.NQ : k.NY], a.sp, a.sec_xi, ws.org, ws.phi, ws.w, ws.vO,
                      ws.JO, ws.Jp, ws.aO, ws.al, ws.cs)
         c, s = ws.cs[k.F_HEAD]
-        return float(ws.org[k.F_HEAD, 1] + s * cx + c * cy)
+        return np.array([ws.org[k.F_HEAD, 0] + c * cx - s * cy,
+                         ws.org[k.F_HEAD, 1] + s * cx + c * cy])
 
     i = int(np.argmin(np.abs(res.dip_m - res.method["mid_stroke_dip_m"])))  # mid-stroke
-    ratio = (head_com_y(path[i + 1]) - head_com_y(path[i - 1])) / (
-        res.dip_m[i + 1] - res.dip_m[i - 1])
+    velocity = (head_com(path[i + 1]) - head_com(path[i - 1])) / (
+        res.dip_m[i + 1] - res.dip_m[i - 1])  # per unit key-front dip
+    ratio = velocity[1]
+    # the added mass moves with the head's centre: the mass felt at the key front grows by
+    # it times the square of the head's speed per key-front speed
+    assert res2.figures["inertia_mass"] - res.figures["inertia_mass"] == pytest.approx(
+        extra * 1e3 * velocity @ velocity, rel=0.02)
     assert 3 < ratio < 8  # the head rises several times faster than the key front dips
     g = model.params.tree["gravity"]
     assert res2.frictionless_n[i] - res.frictionless_n[i] == pytest.approx(

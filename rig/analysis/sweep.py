@@ -103,6 +103,7 @@ TOUCH_METRICS = [
     Metric("up_weight_stroke_g", "g", "up-weight through the whole touch stroke"),
     Metric("strike_weight_g", "g", "hammer's weight at its strike point"),
     Metric("front_weight_g", "g", "key's own weight at the key front"),
+    Metric("inertia_mass_g", "g", "mass felt at the key front when accelerating the key"),
 ]
 
 

@@ -15,7 +15,10 @@ Figures (docs/touch.md has the definitions and the method):
   level, centre pin supported), and ``hammer_mass``;
 - ``front_weight``: the key's own weight at the key front (key alone on its balance pin);
 - ``key_ratio``: capstan contact's horizontal arm over the key front's, about the balance pin;
-- ``action_ratio``: strike-point rise per key-front dip over the touch stroke.
+- ``action_ratio``: strike-point rise per key-front dip over the touch stroke;
+- ``inertia_mass``: the mass a finger accelerates at the key front, mid-stroke (twice the
+  action's kinetic energy at 1 m/s of key-front speed along the press): a key-front
+  acceleration a needs this mass times a on top of the static force.
 
 Method: quasi-static equilibria. At each key-front dip of the stroke the mechanism's
 generalized forces are solved to zero (every active coordinate and the key force, with the
@@ -57,7 +60,7 @@ STROKE_STOPS = {2: "key meets the front punching", 8: "jack toe meets the let-of
 REST_SUPPORTS = {3: "key back felt", 13: "hammer rest rail"}
 FIGURES = ("down_weight", "up_weight", "balance_weight", "friction", "down_weight_stroke",
            "up_weight_stroke", "strike_weight", "hammer_mass", "front_weight", "key_ratio",
-           "action_ratio")
+           "action_ratio", "inertia_mass")
 FIGURE_DOCS = {
     "down_weight": "least weight at the key front that keeps the key going down, mid-stroke "
                    "(friction opposing)",
@@ -72,11 +75,13 @@ FIGURE_DOCS = {
     "front_weight": "key's own weight at the key front, key alone on its balance pin",
     "key_ratio": "capstan contact's horizontal arm / key front's, about the balance pin",
     "action_ratio": "strike-point rise per key-front dip over the touch stroke",
+    "inertia_mass": "mass felt at the key front when accelerating the key, mid-stroke "
+                    "(2 x kinetic energy at 1 m/s)",
 }
 UNITS = {"down_weight": "g", "up_weight": "g", "down_weight_stroke": "g",
          "up_weight_stroke": "g", "balance_weight": "g", "friction": "g",
          "strike_weight": "g", "hammer_mass": "g", "front_weight": "g", "key_ratio": "1",
-         "action_ratio": "1"}
+         "action_ratio": "1", "inertia_mass": "g"}
 HAMMER_FRAMES = (6, 7)  # kernel frames F_HAMMER, F_HEAD (the hammer's bodies)
 
 
@@ -353,6 +358,8 @@ def measure(model: ActionModel) -> Touch:
     figures["hammer_mass"] = hammer_mass * 1e3
     figures["key_ratio"] = key_ratio
     figures["action_ratio"] = float((s1 - s0) / (dip[-1] - dip[0]))
+    moving = np.r_[states[mid][: k.NQ], tangent[mid]]  # 1 m/s of key-front speed
+    figures["inertia_mass"] = 2.0 * model.energy(moving)[0] * 1e3
     figures = {n: figures[n] for n in FIGURES}
     return Touch(figures=figures, newtons=newtons, dip_m=dip, down_n=down, up_n=up,
                  frictionless_n=np.array(forces), stroke_end=end, key_front_radius_m=r_front,
