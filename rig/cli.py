@@ -393,6 +393,39 @@ def regulate(
         console.print(f"wrote {write}", markup=False, highlight=False, soft_wrap=True)
 
 
+@app.command("touch")
+def touch(
+    model: Annotated[Path | None, typer.Option(
+        "--model", "-m", help="model YAML (parameters, effects)")] = None,
+    as_json: _JsonOpt = False,
+) -> None:
+    """The action's touch weights at the key front as a technician quotes them (down-, up-,
+    balance weight, friction, strike and front weight, key and action ratios; docs/touch.md)."""
+    from rig.model import touch as tm
+    from rig.services import touch as svc
+
+    try:
+        m, res = svc.touch(model)
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
+    if as_json:
+        _emit_json(svc.document(m, res, model))
+        return
+    for name in tm.FIGURES:
+        value, units = res.figures[name], tm.UNITS[name]
+        newtons = f"  ({res.newtons[name]:.4f} N)" if name in res.newtons else ""
+        shown = f"{value:7.2f} {units}" if units == "g" else f"{value:7.3f}  "
+        console.print(f"{name:<18} {shown}{newtons:<13}  {tm.FIGURE_DOCS[name]}",
+                      markup=False, highlight=False, soft_wrap=True)
+    console.print(f"key front: {res.key_front_radius_m * 1e3:.1f} mm from the balance pin; "
+                  f"stroke {res.dip_m[0] * 1e3:.2f}-{res.dip_m[-1] * 1e3:.2f} mm of key-front "
+                  f"dip, ended by: {res.stroke_end}", markup=False, highlight=False,
+                  soft_wrap=True)
+    console.print(f"mid-stroke: {res.method['mid_stroke_dip_m'] * 1e3:.2f} mm; weights are "
+                  f"grams-force (N / {tm.G0} x 1000)", markup=False, highlight=False,
+                  soft_wrap=True)
+
+
 @app.command("effects")
 def list_effects(as_json: _JsonOpt = False) -> None:
     """List the effect library: parameters and the residual each effect explains."""
@@ -1011,6 +1044,9 @@ def sweep_cmd(
     force: Annotated[bool, typer.Option(help="replace an existing --out / --report")] = False,
     report: Annotated[Path | None, typer.Option(help="write the indices as HTML here")] = None,
     batch: Annotated[int, typer.Option(help="blows per task sent to a worker")] = 1,
+    touch: Annotated[bool, typer.Option(
+        "--touch", help="also report each row's touch weights (down_weight_g, up_weight_g, "
+        "...; rig touch, docs/touch.md)")] = False,
 ) -> None:
     """Blows over parameter ranges: per-blow metrics and Sobol sensitivity indices."""
     import signal
@@ -1041,7 +1077,7 @@ def sweep_cmd(
         res, sens = svc.sweep(model, profile, param, out, design=design, samples=samples,
                               seed=seed, duration=duration, scheduler=scheduler, jobs=jobs,
                               resume=resume, force=force, report=report, batch=batch,
-                              progress=progress, stop=lambda: stopping[0])
+                              progress=progress, stop=lambda: stopping[0], touch=touch)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     except (KeyboardInterrupt, SystemError) as exc:  # numba wraps a Ctrl-C in SystemError

@@ -93,6 +93,31 @@ ACTION_METRICS = [
 ]
 
 
+# the touch weights of the row's model (rig touch, docs/touch.md), with --touch
+TOUCH_METRICS = [
+    Metric("down_weight_g", "g", "down-weight at the key front, mid-stroke"),
+    Metric("up_weight_g", "g", "up-weight at the key front, mid-stroke"),
+    Metric("balance_weight_g", "g", "(down-weight + up-weight) / 2"),
+    Metric("friction_g", "g", "(down-weight - up-weight) / 2"),
+    Metric("down_weight_stroke_g", "g", "down-weight through the whole touch stroke"),
+    Metric("up_weight_stroke_g", "g", "up-weight through the whole touch stroke"),
+    Metric("strike_weight_g", "g", "hammer's weight at its strike point"),
+    Metric("front_weight_g", "g", "key's own weight at the key front"),
+    Metric("inertia_mass_g", "g", "mass felt at the key front when accelerating the key"),
+]
+
+
+def touch_metrics(model: Any) -> tuple[float, ...]:
+    """The TOUCH_METRICS of ``model`` (NaN where its statics have no answer)."""
+    from rig.model import touch
+
+    try:
+        fig = touch.measure(model).figures
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return (math.nan,) * len(TOUCH_METRICS)
+    return tuple(float(fig[m.name.removesuffix("_g")]) for m in TOUCH_METRICS)
+
+
 def blow_metrics(result: Any) -> tuple[float, ...]:
     """The ACTION_METRICS of one simulated blow (NaN where the event did not happen)."""
     ev = result.events
@@ -115,21 +140,30 @@ def action_blow(shared: Any, x: np.ndarray) -> tuple[float, ...]:
     """One blow of ``shared = (model, profile, targets, duration)`` at parameter values x."""
     from rig.analysis import fit as ft
 
-    model, profile, targets, duration = shared
+    model, profile, targets, duration, *options = shared
+    with_touch = bool(options and options[0])
     values = {t.label: float(v) for t, v in zip(targets, x, strict=True)}
+    touch = (math.nan,) * len(TOUCH_METRICS) if with_touch else ()
     try:
         m = ft.rebuild(model, (), values, targets)
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return (math.nan,) * len(ACTION_METRICS) + touch
+    if with_touch:
+        touch = touch_metrics(m)
+    try:
         result = m.simulate(profile, duration)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-        return (math.nan,) * len(ACTION_METRICS)
+        return (math.nan,) * len(ACTION_METRICS) + touch
     if not result.success:
-        return (math.nan,) * len(ACTION_METRICS)
-    return blow_metrics(result)
+        return (math.nan,) * len(ACTION_METRICS) + touch
+    return blow_metrics(result) + touch
 
 
 def action_study(model: Any, profile: Any, axes: Sequence[Axis], *,
-                 duration: float | None = None, identity: dict[str, Any] | None = None) -> Study:
-    """The action's blow under ``profile`` with the axes' parameters set per row."""
+                 duration: float | None = None, identity: dict[str, Any] | None = None,
+                 touch: bool = False) -> Study:
+    """The action's blow under ``profile`` with the axes' parameters set per row (and, with
+    ``touch``, the row model's touch weights, TOUCH_METRICS)."""
     from rig.analysis import fit as ft
 
     targets = []
@@ -143,6 +177,10 @@ def action_study(model: Any, profile: Any, axes: Sequence[Axis], *,
     ident = {"model": hashlib.sha256(model.parameters_yaml.encode()
                                       + effects.encode()).hexdigest(),
              "duration": duration, **(identity or {})}
+    if touch:
+        ident["touch"] = True
+        return Study(action_blow, [*ACTION_METRICS, *TOUCH_METRICS],
+                     (model, profile, targets, duration, True), ident)
     return Study(action_blow, list(ACTION_METRICS), (model, profile, targets, duration), ident)
 
 

@@ -17,10 +17,11 @@ def sweep(model_file: Path | None, profile_file: Path, params: Sequence[str], ou
           design: str = "sobol", samples: int = 64, seed: int = 0,
           duration: float | None = None, scheduler: str | None = None,
           jobs: int | None = None, resume: bool = False, force: bool = False,
-          report: Path | None = None, batch: int = 1,
+          report: Path | None = None, batch: int = 1, touch: bool = False,
           progress: Callable[[int, int, float], None] | None = None,
           stop: Callable[[], bool] | None = None) -> tuple[sw.SweepResult, sw.Sensitivity | None]:
-    """Run (or finish) the sweep into ``out``; Sobol indices for a sobol design."""
+    """Run (or finish) the sweep into ``out``; Sobol indices for a sobol design. With
+    ``touch`` every row also reports its model's touch weights (rig touch)."""
     axes = [sw.Axis.parse(p) for p in params]
     if len({a.name for a in axes}) != len(axes):
         raise InputError("param: each parameter may appear once")
@@ -32,7 +33,8 @@ def sweep(model_file: Path | None, profile_file: Path, params: Sequence[str], ou
     model = ActionModel.from_yaml(model_file)
     profile = profiles.load(profile_file)
     ident = {"profile": hashlib.sha256(Path(profile_file).read_bytes()).hexdigest()}
-    study = sw.action_study(model, profile, axes, duration=duration, identity=ident)
+    study = sw.action_study(model, profile, axes, duration=duration, identity=ident,
+                             touch=touch)
     with executor_for(jobs, scheduler) as ex:
         res = sw.run_sweep(study, axes, design, samples, out, ex, seed=seed, resume=resume,
                            force=force, batch=batch, progress=progress,

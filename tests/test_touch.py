@@ -1,0 +1,312 @@
+"""rig touch (issue 40): touch weights at the key front against independent answers."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig.errors import InputError
+from rig.model import kernel as k
+from rig.model import touch
+from rig.model.action import ActionModel
+from rig.params import Parameters
+
+ROOT = Path(__file__).resolve().parents[1]
+FRICTION_OFF = {**{f"contacts.{i}.A": 0.0 for i in (1, 4, 7, 10)},
+                **{f"joint_friction.{j}.E": 0.0
+                   for j in ("key", "whippen", "jack", "repetition", "hammer")}}
+
+
+def model_with(overrides: dict[str, object]) -> ActionModel:
+    params = Parameters.default()
+    params.update(overrides, source="test")
+    return ActionModel(params)
+
+
+@pytest.fixture(scope="module")
+def base() -> touch.Touch:
+    return touch.measure(ActionModel())
+
+
+@pytest.fixture(scope="module")
+def frictionless() -> tuple[ActionModel, touch.Touch]:
+    m = model_with(FRICTION_OFF)
+    return m, touch.measure(m)
+
+
+def _elastic_energy(model: ActionModel, y: np.ndarray) -> float:
+    """Every contact's stored energy, the integral of its elastic law a x^3 + b x^2 + c x."""
+    co = np.zeros((k.N_CONTACT_OUT, 1, model.packed.n_contacts))
+    k.sample_outputs(model.packed.arrays, model.workspace(), y[None, :], np.zeros(1),
+                     model._head_pt, model._gauge, np.zeros((k.N_X, 1)), co)
+    cl = model.packed.arrays.cl
+    total = 0.0
+    for i, x in enumerate(co[k.O_PEN, 0]):
+        if x > 0:
+            total += cl[i, k.L_A] * x**4 / 4 + cl[i, k.L_B] * x**3 / 3 + cl[i, k.L_C] * x**2 / 2
+    return total
+
+
+def _potential(model: ActionModel, y: np.ndarray) -> float:
+    """Gravity (the kernel's energy function), the springs (from the parameter file: the
+    jack's constant torque, the repetition spring) and the felts (J)."""
+    tree = model.params.tree
+    pot = model.energy(np.r_[y[: k.NQ], np.zeros(k.NQ)])[1]
+    sign = tree["springs_sign"]["jack"]
+    pot -= sign * tree["springs"]["jack_torque"] * y[k.QJ]
+    rep = tree["springs"]["repetition"]
+    pot += 0.5 * rep["k"] * (y[k.QR] - rep["theta0"]) ** 2
+    return pot + _elastic_energy(model, y)
+
+
+def _path(model: ActionModel, result: touch.Touch) -> list[np.ndarray]:
+    st = touch._Statics(model)
+    y, f, out = st.rest, 0.0, []
+    for d in result.dip_m:
+        y, f, _ = st.solve(float(d), y, f, st.frictionless)
+        out.append(y.copy())
+    return out
+
+
+def test_frictionless_action_balances_by_virtual_work(frictionless):
+    """Without friction DW == UW == balance weight, and the key force at each dip is the
+    potential energy's slope along the press (F d(dip) = dV), computed independently."""
+    model, res = frictionless
+    assert res.figures["friction"] == pytest.approx(0.0, abs=1e-6)
+    assert res.figures["down_weight"] == pytest.approx(res.figures["up_weight"], abs=1e-6)
+    np.testing.assert_allclose(res.down_n, res.up_n, atol=1e-9)
+    np.testing.assert_allclose(res.down_n, res.frictionless_n, atol=1e-9)
+    path = _path(model, res)
+    pot = np.array([_potential(model, y) for y in path])
+    slope = (pot[2:] - pot[:-2]) / (res.dip_m[2:] - res.dip_m[:-2])
+    np.testing.assert_allclose(res.frictionless_n[1:-1], slope, rtol=3e-3)
+    mid = int(np.argmin(np.abs(res.dip_m - res.method["mid_stroke_dip_m"])))
+    assert res.figures["balance_weight"] == pytest.approx(touch.grams(res.frictionless_n[mid]))
+    # over the whole stroke: the largest and the smallest frictionless force
+    assert res.figures["down_weight_stroke"] == pytest.approx(
+        touch.grams(res.frictionless_n.max()))
+    assert res.figures["up_weight_stroke"] == pytest.approx(touch.grams(res.frictionless_n.min()))
+
+
+def test_key_front_lead_moves_balance_by_its_moment(base):
+    """10 g of lead on the line from the balance pin to the key front, halfway out: every
+    weight (friction included) drops by 10 g x 1/2 (its moment over the front's arm)."""
+    p = Parameters.default()
+    key = p.tree["bodies"]["key"]
+    m, (cx, cy) = key["mass"], key["com"]
+    lead, s = 0.010, 0.5
+    px, py = p.tree["key_input"]["point"]
+    at = (s * px, s * py)
+    p.set("bodies.key.mass", m + lead)
+    p.set("bodies.key.com", [(m * cx + lead * at[0]) / (m + lead),
+                             (m * cy + lead * at[1]) / (m + lead)])
+    leaded = touch.measure(ActionModel(p))
+    g = p.tree["gravity"]
+    expected = lead * s * g / touch.G0 * 1e3  # grams-force
+    for name in ("down_weight", "up_weight", "balance_weight", "down_weight_stroke",
+                 "up_weight_stroke"):
+        assert base.figures[name] - leaded.figures[name] == pytest.approx(expected, abs=0.03)
+    assert leaded.figures["friction"] == pytest.approx(base.figures["friction"], abs=0.03)
+    assert leaded.figures["front_weight"] - base.figures["front_weight"] == pytest.approx(
+        expected, abs=1e-3)
+    assert leaded.figures["inertia_mass"] > base.figures["inertia_mass"]
+
+
+def test_key_inertia_is_felt_through_the_front_arm_squared(base):
+    """More moment of inertia of the key (statics unchanged): the mass felt at the key front
+    grows by it over the key front's arm squared (the arm at rest; 0.5 % shorter than
+    mid-stroke's)."""
+    added = 1e-3  # kg m^2
+    heavier = touch.measure(model_with({"bodies.key.inertia": 2.75e-3 + added}))
+    assert heavier.figures["down_weight"] == pytest.approx(base.figures["down_weight"])
+    assert heavier.figures["inertia_mass"] - base.figures["inertia_mass"] == pytest.approx(
+        added / base.key_front_radius_m**2 * 1e3, rel=0.01)
+
+
+def test_heavier_hammer_raises_weights_by_the_geometry(frictionless, base):
+    """1 g more hammer head: the frictionless key force rises by 1 g x the head's rise per
+    key-front dip (read from the path's kinematics), and the down-weight by more (friction
+    grows with the load it carries)."""
+    model, res = frictionless
+    extra = 0.001
+    heavier = model_with({**FRICTION_OFF, "bodies.hammer_head.mass": 0.00792 + extra})
+    res2 = touch.measure(heavier)
+    path = _path(model, res)
+    ws = model.workspace()
+    cx, cy = model.params.tree["bodies"]["hammer_head"]["com"]
+
+    def head_com(y: np.ndarray) -> np.ndarray:
+        a = model.packed.arrays
+        k.kinematics(y[: k.NQ], y[k.NQ : k.NY], a.sp, a.sec_xi, ws.org, ws.phi, ws.w, ws.vO,
+                     ws.JO, ws.Jp, ws.aO, ws.al, ws.cs)
+        c, s = ws.cs[k.F_HEAD]
+        return np.array([ws.org[k.F_HEAD, 0] + c * cx - s * cy,
+                         ws.org[k.F_HEAD, 1] + s * cx + c * cy])
+
+    i = int(np.argmin(np.abs(res.dip_m - res.method["mid_stroke_dip_m"])))  # mid-stroke
+    velocity = (head_com(path[i + 1]) - head_com(path[i - 1])) / (
+        res.dip_m[i + 1] - res.dip_m[i - 1])  # per unit key-front dip
+    ratio = velocity[1]
+    # the added mass moves with the head's centre: the mass felt at the key front grows by
+    # it times the square of the head's speed per key-front speed
+    assert res2.figures["inertia_mass"] - res.figures["inertia_mass"] == pytest.approx(
+        extra * 1e3 * velocity @ velocity, rel=0.02)
+    assert 3 < ratio < 8  # the head rises several times faster than the key front dips
+    g = model.params.tree["gravity"]
+    assert res2.frictionless_n[i] - res.frictionless_n[i] == pytest.approx(
+        extra * g * ratio, rel=0.01)
+    assert res2.figures["down_weight"] - res.figures["down_weight"] == pytest.approx(
+        touch.grams(extra * g * ratio), rel=0.01)
+    assert res2.figures["strike_weight"] > res.figures["strike_weight"]
+    assert res2.figures["hammer_mass"] == pytest.approx(res.figures["hammer_mass"] + 1.0)
+    # with friction: the down-weight rises by more than the frictionless share
+    with_friction = touch.measure(model_with({"bodies.hammer_head.mass": 0.00792 + extra}))
+    rise = with_friction.figures["down_weight"] - base.figures["down_weight"]
+    assert rise > touch.grams(extra * g * ratio)
+    assert with_friction.figures["up_weight"] > base.figures["up_weight"]
+
+
+def test_friction_shares_add_up_to_the_friction_of_the_down_press(base):
+    """The friction each joint and contact dissipates per key-front travel (a power balance)
+    adds up to what the down press needs over the frictionless force."""
+    total = sum(base.friction_shares_g.values())
+    mid = int(np.argmin(np.abs(base.dip_m - base.method["mid_stroke_dip_m"])))
+    assert total == pytest.approx(touch.grams(base.down_n[mid] - base.frictionless_n[mid]),
+                                  rel=0.02)
+    assert base.friction_shares_g["key pin"] == pytest.approx(
+        touch.grams(0.0122 / base.key_front_radius_m), rel=0.02)
+
+
+def test_static_figures_follow_their_definitions(base):
+    p = Parameters.default().tree
+    key = p["bodies"]["key"]
+    # front weight: the key alone, its weight's moment about the pin over the front's arm
+    th = ActionModel().rest_state()[k.QK]
+    cx, cy = key["com"]
+    arm = cx * math.cos(th) - cy * math.sin(th)
+    assert base.figures["front_weight"] == pytest.approx(
+        key["mass"] * p["gravity"] * arm / base.key_front_radius_m / touch.G0 * 1e3, rel=1e-4)
+    hammer = sum(p["bodies"][b]["mass"] for b in ("hammer_base", "hammer_shank", "hammer_head"))
+    assert base.figures["hammer_mass"] == pytest.approx(hammer * 1e3)
+    # the capstan sits about half as far from the pin as the key front
+    assert base.figures["key_ratio"] == pytest.approx(0.1176 / 0.2278, rel=0.03)
+    assert base.figures["balance_weight"] == pytest.approx(
+        (base.figures["down_weight"] + base.figures["up_weight"]) / 2)
+    assert base.figures["down_weight"] > base.figures["balance_weight"] > \
+        base.figures["up_weight"] > 0
+
+
+def test_models_with_effect_states_are_refused():
+    with pytest.raises(InputError, match="fingertip"):
+        touch.measure(ActionModel(effects=["fingertip"]))
+
+
+def _rig(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "rig", *args], capture_output=True, text=True,
+                          timeout=600, cwd=cwd, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+@pytest.mark.slow
+def test_cli_prints_and_emits_json(tmp_path, base):
+    out = _rig("touch", "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert doc["schema"] == "rig.touch/1"
+    jsonschema = pytest.importorskip("jsonschema")
+    import re
+
+    text = (ROOT / "docs" / "json.md").read_text()
+    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
+    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.touch/1"))
+    assert doc["figures"]["down_weight"]["value"] == pytest.approx(base.figures["down_weight"])
+    assert doc["figures"]["down_weight"]["newtons"] == pytest.approx(base.newtons["down_weight"])
+    text = _rig("touch")
+    assert text.returncode == 0, text.stderr
+    assert any(ln.startswith("down_weight") for ln in text.stdout.splitlines())
+    bad = tmp_path / "m.yaml"
+    bad.write_text("parameters: {contacts: {1: {A: oops}}}\n")
+    refused = _rig("touch", "--model", str(bad))
+    assert refused.returncode == 2
+    assert str(bad.name) in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
+    """rig sweep --touch: each row's model gives its touch weights beside the blow's metrics;
+    a heavier hammer head raises the down- and up-weight and the strike weight."""
+    from rig import profiles
+    from rig.analysis import sweep as sw
+
+    axes = [sw.Axis.parse("bodies.hammer_head.mass=0.007:0.009")]
+    study = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
+                            axes, duration=0.02, touch=True)
+    names = [m.name for m in study.metrics]
+    assert names[-len(sw.TOUCH_METRICS):] == [m.name for m in sw.TOUCH_METRICS]
+    light = dict(zip(names, study.fn(study.shared, np.array([0.007])), strict=True))
+    heavy = dict(zip(names, study.fn(study.shared, np.array([0.009])), strict=True))
+    for name in ("down_weight_g", "up_weight_g", "balance_weight_g", "strike_weight_g"):
+        assert heavy[name] > light[name] + 0.5, name
+    assert heavy["front_weight_g"] == pytest.approx(light["front_weight_g"])
+    # the row's figures are rig touch's of the same model
+    m = ActionModel(Parameters.default().set("bodies.hammer_head.mass", 0.009))
+    assert heavy["down_weight_g"] == pytest.approx(touch.measure(m).figures["down_weight"])
+    # without --touch the study is as before
+    plain = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
+                            axes, duration=0.02)
+    assert [m.name for m in plain.metrics] == [m.name for m in sw.ACTION_METRICS]
+
+
+@pytest.mark.slow
+def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
+    """The dynamic answer: a slow force ramp (0 -> 70 g in 4 s) on the model whose friction
+    thresholds are lowered so that its regularised laws act nearly as Coulomb friction at
+    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force just
+    under the static down force there, and closer to it the lower the thresholds."""
+    from rig import profiles
+
+    ramp = profiles.from_points([[0.0, 0.0], [4.0, 0.070 * touch.G0]], name="ramp")
+    gaps = []
+    shipped = touch.measure(ActionModel()).figures["down_weight_stroke"]
+    for vt, wt in ((5e-4, 5e-3), (1e-4, 1e-3)):
+        p = Parameters.default()
+        for c in (1, 4, 7, 10):
+            p.set(f"friction_threshold.contact_vt.{c}", vt)
+        for j in ("key", "whippen", "jack", "repetition", "hammer"):
+            p.set(f"friction_threshold.joint_wt.{j}", wt)
+        model = ActionModel(p)
+        static = touch.measure(model)
+        # the static figures are the sliding limit: the thresholds do not move them
+        assert static.figures["down_weight_stroke"] == pytest.approx(shipped, abs=0.05)
+        res = model.simulate(ramp)
+        i = int(np.argmax(res.channels["key_dip"] > static.dip_m[0]))
+        gaps.append(static.down_n[0] - res.channels["force"][i])
+    assert 0 < gaps[1] < gaps[0]
+    assert touch.grams(gaps[1]) < 2.0
+
+
+@pytest.mark.slow
+def test_no_sliding_equilibrium_is_refused_naming_the_contact():
+    """A heavier hammer and more knuckle friction: on the return the knuckle's friction turns
+    the jack off its whippen stop; rig touch says where instead of printing a number."""
+    with pytest.raises(InputError, match=r"up press at [0-9.]+ mm .*contact 5 \(whippen-jack\) "
+                                         r"opens"):
+        touch.measure(model_with({"bodies.hammer_head.mass": 0.009, "contacts.7.A": 0.2}))
+
+
+@pytest.mark.slow
+def test_flexible_shank_statics_match_the_rigid_ones(base):
+    """The shank's bending coordinates enter the solve (their own scale); statically they bend
+    by micrometres, so the weights are the rigid model's."""
+    flex = touch.measure(ActionModel(effects=["flexible_shank"]))
+    for name in ("down_weight", "up_weight", "down_weight_stroke", "up_weight_stroke"):
+        assert flex.figures[name] == pytest.approx(base.figures[name], abs=0.05), name
+    assert flex.stroke_end == base.stroke_end
+    # the shank's mass is in its Gauss points now: density x area x length
+    assert flex.figures["hammer_mass"] == pytest.approx(base.figures["hammer_mass"], abs=0.01)
