@@ -1,0 +1,118 @@
+"""The model driven by a real action's measured key (issue 38): the Kawai KG-3C recording of
+examples/kawai-kg3c/ imported, the key made to follow it both ways, the model's strikes
+held against the real hammer's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig.analysis import measurement as ms
+from rig.model.action import ActionModel, SimResult
+from rig.services import importer
+
+ROOT = Path(__file__).resolve().parents[1]
+KAWAI = ROOT / "examples" / "kawai-kg3c"
+KAWAI_TXT = KAWAI / "hammer_damper_2K_17b.txt"
+
+# a string contact that begins less than this after the previous one ended is the same
+# blow's re-strike (the hammer bouncing back up), not a blow of its own
+REBOUND_S = 0.030
+
+
+def _import(tmp_path: Path, min_rest_s: float | None = None) -> Path:
+    """The shipped recording imported through its map; with ``min_rest_s`` the strokes
+    closer than it are one trial (0.1 s: the eight repeated notes become one trial)."""
+    text = (KAWAI / "map.yaml").read_text()
+    if min_rest_s is not None:
+        text = text.replace("segment:\n  channel: key_dip\n",
+                            f"segment:\n  channel: key_dip\n  min_rest_s: {min_rest_s}\n")
+        assert "min_rest_s" in text
+    m = tmp_path / "map.yaml"
+    m.write_text(text)
+    out = tmp_path / "kawai.h5"
+    importer.import_files([KAWAI_TXT], m, out)
+    return out
+
+
+def real_strikes(meas: ms.Measurement) -> np.ndarray:
+    """Times the real hammer reached the string: its shank sensor rising through 90 % of its
+    top (the sensor saturates there, a few mm below the string), each counted once until it
+    falls back below 50 %."""
+    h = meas.channels["hammer_shank_rise"]
+    top = float(np.max(h))
+    out, up = [], False
+    for t, v in zip(meas.time, h, strict=True):
+        if not up and v > 0.9 * top:
+            up = True
+            out.append(t)
+        elif up and v < 0.5 * top:
+            up = False
+    return np.array(out)
+
+
+def model_contacts(res: SimResult) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end times of the model's hammer-string contacts (contact 12)."""
+    on = res.contact("contact_penetration", 12) > 0
+    d = np.diff(on.astype(int))
+    return res.time[np.nonzero(d == 1)[0] + 1], res.time[np.nonzero(d == -1)[0] + 1]
+
+
+def blows(res: SimResult) -> tuple[np.ndarray, int]:
+    """The model's blows (a string contact starting REBOUND_S or more after the previous one
+    ended) and the count of re-strikes (those starting sooner)."""
+    on, off = model_contacts(res)
+    out, again = [], 0
+    for k, t in enumerate(on):
+        if k and t - off[k - 1] < REBOUND_S:
+            again += 1
+        else:
+            out.append(t)
+    return np.array(out), again
+
+
+def tracking_rms(meas: ms.Measurement, res: SimResult) -> float:
+    dip = meas.channels["key_dip"] - float(np.mean(meas.channels["key_dip"][meas.rest_mask()]))
+    e = res.channels["key_dip"] - np.interp(res.time, meas.time, dip)
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+@pytest.mark.slow
+def test_repeated_notes_make_as_many_blows_as_the_real_action(tmp_path):
+    run = _import(tmp_path, min_rest_s=0.1)
+    meas = ms.load(run, [7], input="motion")[0]
+    assert meas.metadata["segments"][7]["presses"] == 9  # eight notes and the half press
+    real = real_strikes(meas)
+    assert real.size == 8
+    res = ms.simulate(ActionModel.from_yaml(None), meas, "motion")
+    assert res.success
+    # the key follows the measured motion both ways (push-only: 1.8 mm RMS, 6.1 mm worst)
+    assert tracking_rms(meas, res) < 0.3e-3
+    got, again = blows(res)
+    # as many blows as the real hammer made, each within 10 ms of the real one (the
+    # push-only drive made 9, one of them 62 ms before any real strike, and struck first
+    # 10 ms early); the half press strikes in neither
+    assert got.size == real.size, (got, real)
+    assert np.max(np.abs(got - real)) < 0.010, (got, real)
+    # the model's hammer re-strikes within 15 ms in some of them, where the real hammer's
+    # sensor falls straight back: a model discrepancy (the back check, issue 38), counted
+    assert 0 <= again <= real.size
+
+
+@pytest.mark.slow
+def test_single_blows_strike_when_the_real_hammer_did(tmp_path):
+    run = _import(tmp_path)
+    model = ActionModel.from_yaml(None)
+    for k in (4, 6):  # single fast presses, the key held
+        meas = ms.load(run, [k], input="motion")[0]
+        real = real_strikes(meas)
+        assert real.size == 1
+        res = ms.simulate(model, meas, "motion")
+        got, again = blows(res)
+        assert got.size == 1 and again == 0, (k, got)
+        # push-only: 2-5 ms early; followed both ways: within 1.5 ms
+        assert abs(got[0] - real[0]) < 0.002, (k, got, real)
+        assert abs(res.events["strike"] - got[0]) < 1e-3
+        assert tracking_rms(meas, res) < 0.5e-3
