@@ -116,3 +116,57 @@ def test_single_blows_strike_when_the_real_hammer_did(tmp_path):
         assert abs(got[0] - real[0]) < 0.002, (k, got, real)
         assert abs(res.events["strike"] - got[0]) < 1e-3
         assert tracking_rms(meas, res) < 0.5e-3
+
+
+# --- a sensor's radius fitted: the Kawai's hammer shank sensor compared as hammer_angle ---
+
+def test_a_fitted_radius_recovers_the_sensor_and_leaves_its_saturation_out():
+    from rig.analysis import compare as cp
+
+    t = np.arange(-0.05, 0.2, 0.0005)
+    theta = np.where(t > 0, -0.37 * np.sin(np.clip(t, 0, 0.1) * np.pi / 0.2) ** 2, 0.0)
+    d = -0.0093 * theta                          # a shank rising 9.3 mm per rad
+    d_read = np.minimum(d, 0.003)                # the sensor saturates at 3 mm
+    meas = ms.Measurement(t, {"hammer_shank_rise": d_read}, {"hammer_shank_rise": "m"},
+                          metadata={"import": {"columns": [{
+                              "channel": "hammer_shank_rise", "geometry": {
+                                  "radius_m": None, "radius": "fit", "model": "arc",
+                                  "angle_of": "hammer_angle"}}]}})
+    assert ms.fitted_geometries(meas) == {"hammer_shank_rise": "hammer_angle"}
+    time, names, measured = cp.prepare(meas, "motion")
+    assert names == ["hammer_angle"]
+    w = t >= 0
+    fit = cp.fit_geometries(meas, time, measured, {"hammer_angle": theta[w]})
+    f = fit["hammer_angle"]
+    assert abs(f["radius_m"] - 0.0093) < 1e-12 and f["sign"] == -1 and f["rms_m"] < 1e-12
+    sat = d[w] > 0.003
+    assert f["saturated"] == int(sat.sum()) > 10
+    got = measured["hammer_angle"]
+    assert np.all(np.isnan(got[sat])) and np.allclose(got[~sat], theta[w][~sat])
+
+
+@pytest.mark.slow
+def test_compare_by_motion_runs_on_a_kawai_stroke_through_the_cli(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from rig.cli import app
+
+    run = _import(tmp_path)
+    r = CliRunner().invoke(app, ["compare", str(run), "--input", "motion", "--trial", "4"])
+    assert r.exit_code == 0, r.output
+    assert "hammer_angle [rad]          fitted   read from hammer_shank_rise through a " \
+           "radius fitted to base model: " in r.output
+    j = CliRunner().invoke(app, ["compare", str(run), "--input", "motion", "--trial", "4",
+                                 "--json"])
+    assert j.exit_code == 0, j.output
+    doc = json.loads(j.output[j.output.index("{"):])
+    comp = doc["trials"][0]
+    f = comp["fitted"]["hammer_angle"]
+    # the shank sensor sits about a centimetre from the flange (not given by the source)
+    assert 0.005 < f["radius_m"] < 0.015 and f["sign"] == -1
+    assert comp["channels"] == ["hammer_angle"] and "key_dip" in comp["inputs"]
+    err = comp["models"][0]["errors"]["hammer_angle"]
+    assert err["nrms"] < 0.15 and err["units"] == "rad"
+    assert abs(comp["models"][0]["event_errors"]["strike time"]) < 2.0  # ms

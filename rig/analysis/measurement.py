@@ -73,6 +73,21 @@ class Measurement:
         return self.units.get(name, "") in RELATIVE_UNITS
 
 
+def fitted_geometries(meas: Measurement) -> dict[str, str]:
+    """An imported run's displacement channels whose radius is a fitted unknown (a map's
+    ``geometry: {radius: fit, angle_of: ...}``, docs/import.md): channel -> the model's
+    angle channel it is read as (``rig compare`` fits the radius)."""
+    imp = meas.metadata.get("import")
+    cols = imp.get("columns", []) if isinstance(imp, dict) else []
+    out = {}
+    for c in cols:
+        g = c.get("geometry") if isinstance(c, dict) else None
+        if isinstance(g, dict) and g.get("radius") == "fit" and c.get("channel") in \
+                meas.channels and g.get("angle_of"):
+            out[str(c["channel"])] = str(g["angle_of"])
+    return out
+
+
 def status_warning(path: str | Path) -> str | None:
     """One line warning that the run file at ``path`` did not finish (its status is
     ``aborted: ...`` or still ``running``), else None (complete, or not a readable run file:
