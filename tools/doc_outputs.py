@@ -50,7 +50,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = Path(sys.executable).with_name("rig")
-DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md", "docs/import.md"]
+DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md", "docs/import.md",
+        "docs/real-data.md"]
 NOT_RUN = {
     "bash tools/install.sh": "the set-up that tools/test.sh runs before the tests (CI's install)",
     "bash tools/test.sh": "the test suite itself",
