@@ -148,6 +148,8 @@ def run(cmd: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     argv = shlex.split(cmd)
     if argv[0] in ("rig", ".venv/bin/rig"):
         argv[0] = str(RIG)
+    elif argv[0] in ("python", "python3", ".venv/bin/python"):  # the environment rig is in
+        argv[0] = sys.executable
     env = {**os.environ, "COLUMNS": "120"}
     return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=900, env=env)
 
