@@ -170,3 +170,21 @@ def test_compare_by_motion_runs_on_a_kawai_stroke_through_the_cli(tmp_path):
     err = comp["models"][0]["errors"]["hammer_angle"]
     assert err["nrms"] < 0.15 and err["units"] == "rad"
     assert abs(comp["models"][0]["event_errors"]["strike time"]) < 2.0  # ms
+
+
+def test_events_out_of_the_order_of_a_blow_are_flagged():
+    from rig.analysis import compare as cp
+
+    good = {"key_starts": 0.001, "toe_meets_button": 0.028, "let_off": 0.030, "strike": 0.032,
+            "string_release": 0.0335, "check": 0.056, "key_bottom": 0.034,
+            "key_release": 0.6}
+    assert cp.order_flags(good) == []
+    bad = dict(good, let_off=0.0335, key_release=0.02)
+    flags = cp.order_flags(bad)
+    assert len(flags) == 2, flags  # let-off after the strike; the key released too early
+    assert flags[0].startswith("let_off at 33.50 ms is after strike at 32.00 ms")
+    assert any(f.startswith("key_bottom at 34.00 ms is after key_release at 20.00 ms")
+               for f in flags)
+    # within the tolerance (half a sample) is not a contradiction
+    assert cp.order_flags(dict(good, let_off=0.0322), tolerance_s=0.00025) == []
+    assert cp.order_flags(dict(good, strike=float("nan"))) == []

@@ -12,7 +12,10 @@ Measured events come from the run file when it has them (simulated runs);
 otherwise each is located by the local time shift that best aligns the first
 model's channel with the measurement in a window around that model's event
 (strike, let-off, check on the hammer angle; key start, key bottom on the
-key dip), which is how a timing error shows in encoder data.
+key dip), which is how a timing error shows in encoder data. Measured events that
+contradict the order of a blow (``BLOW_ORDER``: let-off after the strike, the key released
+before it reached the bottom, ...) are flagged (``Comparison.flags``: warnings under the
+table, ``flags`` in --json), never silently reported.
 
 A displacement sensor whose radius is a fitted unknown (an imported map's
 ``geometry: {radius: fit, angle_of: hammer_angle}``) is compared as that angle through
@@ -58,6 +61,13 @@ EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
 # (the model's tracking of them), never scored as a residual
 INPUT_CHANNELS: dict[str, tuple[str, ...]] = {"force": ("force",), "command": (),
                                               "motion": ("key_dip", "key_angle")}
+# the order of a blow: each pair (a, b) must have a no later than b when both are found
+BLOW_ORDER: tuple[tuple[str, str], ...] = (
+    ("key_starts", "toe_meets_button"), ("key_starts", "let_off"), ("key_starts", "strike"),
+    ("key_starts", "key_bottom"), ("toe_meets_button", "let_off"), ("let_off", "strike"),
+    ("strike", "string_release"), ("string_release", "check"), ("strike", "check"),
+    ("key_bottom", "key_release"),
+)
 # the event errors that matter to piano makers (name, event or None, units)
 KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
     ("strike time", "strike", "ms"),
@@ -120,6 +130,9 @@ class Comparison:
     # the measured channels that drive the models (input motion: the key's) -> the first
     # model's RMS tracking error, in the channel's units; not scored
     inputs: dict[str, float] = field(default_factory=dict)
+    # measured events that contradict the order of a blow (BLOW_ORDER), one line each;
+    # printed under the table and in --json: reported, never silently
+    flags: list[str] = field(default_factory=list)
     # a compared angle read from a displacement sensor through a fitted radius -> the fit
     # (channel, radius_m, sign, samples, saturated, rms_m: the fit's residual)
     fitted: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -134,6 +147,7 @@ class Comparison:
             "phases": [{"name": p, "start_s": a, "end_s": b} for p, a, b in self.phases],
             "inputs": dict(self.inputs),
             "fitted": {c: dict(v) for c, v in self.fitted.items()},
+            "flags": list(self.flags),
             "models": [{
                 "label": m.label, "ok": m.ok, "message": m.result.message,
                 "errors": {c: {"rms": e.rms, "nrms": e.nrms, "max": e.max, "units": e.units,
@@ -324,6 +338,19 @@ def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.
     return ev, src
 
 
+def order_flags(events: dict[str, float], tolerance_s: float = 0.0) -> list[str]:
+    """The measured events that contradict the order of a blow (``BLOW_ORDER``: let-off
+    after the strike, a key release before the strike, ...), one line per pair out of
+    order by more than ``tolerance_s``."""
+    out = []
+    for a, b in BLOW_ORDER:
+        ta, tb = events.get(a, math.nan), events.get(b, math.nan)
+        if math.isfinite(ta) and math.isfinite(tb) and ta > tb + tolerance_s:
+            out.append(f"{a} at {ta * 1e3:.2f} ms is after {b} at {tb * 1e3:.2f} ms: the "
+                       f"order of a blow says otherwise; one of them is wrong")
+    return out
+
+
 def phases_from(events: dict[str, float], t_end: float) -> list[tuple[str, float, float]]:
     """Phase windows [start, end) bounded by the events; phases whose events are missing
     run to the next event that happened."""
@@ -362,6 +389,7 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
     ref_i = next((i for i, r in enumerate(sims) if r.success), 0)
     fitted = fit_geometries(meas, time, measured, preds[ref_i])
     events, src = measured_events(meas, time, measured, sims[ref_i], preds[ref_i])
+    flags = order_flags(events, 0.5 / meas.rate)
     t_end = float(time[-1]) + 1.0 / meas.rate
     phases = phases_from(events, t_end)
     ranges = {c: float(np.nanmax(measured[c]) - np.nanmin(measured[c])) or 1.0
@@ -382,7 +410,8 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
         i = int(np.searchsorted(meas.time, meas.events["strike"], side="right")) - 1
         speed = float(meas.channels["hammer_head_velocity"][max(i, 0)])
     comp = Comparison(meas, input, time, names, measured, ranges, noise, events, src, speed,
-                      phases, inputs=_tracking(meas, input, time, ref, names), fitted=fitted)
+                      phases, inputs=_tracking(meas, input, time, ref, names), fitted=fitted,
+                      flags=flags)
     for (label, _), res, pred in zip(models, sims, preds, strict=True):
         comp.models.append(_score(comp, label, res, pred))
     return comp
@@ -482,4 +511,5 @@ def table(comp: Comparison) -> str:
                 meas_v) else "   (not found in the measurement)"))
     fails = [f"{m.label}: simulation failed ({m.result.message})" for m in comp.models
              if not m.ok]
-    return "\n".join(lines + fails)
+    flags = [f"warning: measured events out of order: {f}" for f in comp.flags]
+    return "\n".join(lines + fails + flags)
