@@ -440,6 +440,22 @@ BAD_MAPS = [
     (GOOD.replace("force\n    units: N", "hammer_angle\n    units: m") +
      "    geometry: {radius: -1}\n", r"line 6: columns\[0\].geometry.radius: expected a "
                                     r"positive number"),
+    # a fitted radius (issue 38): a sensor's own channel, read as a model angle, on the arc
+    (GOOD.replace("force\n    units: N", "shank_rise\n    units: mm\n    description: x") +
+     "    geometry: {radius: fit}\n", r"line 7: columns\[0\].geometry: angle_of: missing"),
+    (GOOD.replace("force\n    units: N", "shank_rise\n    units: mm\n    description: x") +
+     "    geometry: {radius: fit, angle_of: key_dip}\n",
+     r"line 7: columns\[0\].geometry.angle_of: expected one of the model's angle channels"),
+    (GOOD.replace("force\n    units: N", "shank_rise\n    units: mm\n    description: x") +
+     "    geometry: {radius: fit, angle_of: hammer_angle, model: sine}\n",
+     r"line 7: columns\[0\].geometry.model: radius: fit reads the displacement on the arc"),
+    (GOOD.replace("force\n    units: N", "shank_rise\n    units: mm\n    description: x") +
+     "    geometry: {radius: 9, angle_of: hammer_angle}\n",
+     r"line 7: columns\[0\].geometry.angle_of: only with radius: fit"),
+    (GOOD.replace("force\n    units: N", "hammer_angle\n    units: mm") +
+     "    geometry: {radius: fit, angle_of: hammer_angle}\n",
+     r"line 4: columns\[0\].channel: radius: fit stores the displacement under a channel of "
+     r"its own"),
     (GOOD + "  - {column: 2, channel: force, units: N}\n",
      r"line 6: columns\[1\]: channel force is also columns\[0\]'s"),
     (GOOD + "segment: {channel: key_dip}\n", r"line 6: segment.channel: expected one of the "

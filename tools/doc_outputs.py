@@ -50,7 +50,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = Path(sys.executable).with_name("rig")
-DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md", "docs/import.md"]
+DOCS = ["README.md", "docs/user-guide.md", "docs/workflow.md", "docs/import.md",
+        "docs/real-data.md"]
 NOT_RUN = {
     "bash tools/install.sh": "the set-up that tools/test.sh runs before the tests (CI's install)",
     "bash tools/test.sh": "the test suite itself",
@@ -147,6 +148,8 @@ def run(cmd: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     argv = shlex.split(cmd)
     if argv[0] in ("rig", ".venv/bin/rig"):
         argv[0] = str(RIG)
+    elif argv[0] in ("python", "python3", ".venv/bin/python"):  # the environment rig is in
+        argv[0] = sys.executable
     env = {**os.environ, "COLUMNS": "120"}
     return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=900, env=env)
 

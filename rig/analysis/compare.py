@@ -12,7 +12,16 @@ Measured events come from the run file when it has them (simulated runs);
 otherwise each is located by the local time shift that best aligns the first
 model's channel with the measurement in a window around that model's event
 (strike, let-off, check on the hammer angle; key start, key bottom on the
-key dip), which is how a timing error shows in encoder data.
+key dip), which is how a timing error shows in encoder data. Measured events that
+contradict the order of a blow (``BLOW_ORDER``: let-off after the strike, the key released
+before it reached the bottom, ...) are flagged (``Comparison.flags``: warnings under the
+table, ``flags`` in --json), never silently reported.
+
+A displacement sensor whose radius is a fitted unknown (an imported map's
+``geometry: {radius: fit, angle_of: hammer_angle}``) is compared as that angle through
+the radius and direction that best fit the first model (least squares of the displacement
+against the model's angle, both from rest, over the samples the sensor does not saturate;
+``Comparison.fitted``); its saturated samples are left out of the comparison.
 """
 
 from __future__ import annotations
@@ -52,6 +61,13 @@ EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
 # (the model's tracking of them), never scored as a residual
 INPUT_CHANNELS: dict[str, tuple[str, ...]] = {"force": ("force",), "command": (),
                                               "motion": ("key_dip", "key_angle")}
+# the order of a blow: each pair (a, b) must have a no later than b when both are found
+BLOW_ORDER: tuple[tuple[str, str], ...] = (
+    ("key_starts", "toe_meets_button"), ("key_starts", "let_off"), ("key_starts", "strike"),
+    ("key_starts", "key_bottom"), ("toe_meets_button", "let_off"), ("let_off", "strike"),
+    ("strike", "string_release"), ("string_release", "check"), ("strike", "check"),
+    ("key_bottom", "key_release"),
+)
 # the event errors that matter to piano makers (name, event or None, units)
 KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
     ("strike time", "strike", "ms"),
@@ -114,6 +130,12 @@ class Comparison:
     # the measured channels that drive the models (input motion: the key's) -> the first
     # model's RMS tracking error, in the channel's units; not scored
     inputs: dict[str, float] = field(default_factory=dict)
+    # measured events that contradict the order of a blow (BLOW_ORDER), one line each;
+    # printed under the table and in --json: reported, never silently
+    flags: list[str] = field(default_factory=list)
+    # a compared angle read from a displacement sensor through a fitted radius -> the fit
+    # (channel, radius_m, sign, samples, saturated, rms_m: the fit's residual)
+    fitted: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """The comparison's figures as plain data (``rig compare --json``, docs/json.md)."""
@@ -124,6 +146,8 @@ class Comparison:
             "strike_speed": self.strike_speed,
             "phases": [{"name": p, "start_s": a, "end_s": b} for p, a, b in self.phases],
             "inputs": dict(self.inputs),
+            "fitted": {c: dict(v) for c, v in self.fitted.items()},
+            "flags": list(self.flags),
             "models": [{
                 "label": m.label, "ok": m.ok, "message": m.result.message,
                 "errors": {c: {"rms": e.rms, "nrms": e.nrms, "max": e.max, "units": e.units,
@@ -144,14 +168,17 @@ def prepare(meas: Measurement, input: str = "force", duration: float | None = No
     dur = meas.duration if duration is None else min(float(duration), meas.duration)
     window = (meas.time >= 0) & (meas.time <= dur + 1e-9)
     avail = meas.signal_channels()
+    # a displacement sensor with a fitted radius stands for its angle (filled in by
+    # ``fit_geometries`` once the model has run)
+    geo = {a: c for c, a in ms.fitted_geometries(meas).items() if a not in avail}
     if channels is None:
         # the input is not compared, nor a channel no model has (an imported sensor's own)
         names = [c for c in avail if c not in INPUT_CHANNELS.get(input, ())
-                 and c in CHANNEL_UNITS]
+                 and c in CHANNEL_UNITS] + list(geo)
     else:
         names = list(channels)
         for c in names:
-            if c not in avail:
+            if c not in avail and c not in geo:
                 raise InputError(f"channels: {c!r} is not a calibrated channel of "
                                  f"{meas.label} (it has {avail})")
     if not names:
@@ -162,15 +189,61 @@ def prepare(meas: Measurement, input: str = "force", duration: float | None = No
     rest = meas.rest_mask()
     measured = {}
     for c in names:
-        x = meas.channels[c]
-        off = _rest_value(meas.time, x, rest) if meas.relative(c) else 0.0
-        measured[c] = x[window] - off
+        x = meas.channels[geo.get(c, c)]
+        off = _rest_value(meas.time, x, rest) if meas.relative(c) or c in geo else 0.0
+        measured[c] = x[window] - off  # (a fitted sensor's: its displacement, for now)
     return meas.time[window], names, measured
 
 
+def fit_geometries(meas: Measurement, time: np.ndarray, measured: dict[str, np.ndarray],
+                   ref_pred: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
+    """Turn each fitted-radius sensor's displacement in ``measured`` into its angle (in
+    place): the signed radius c minimizing sum (d - c theta)^2 over the unsaturated
+    samples, theta the reference model's angle (both from rest), then theta = d / c, NaN
+    where the sensor saturates (its extreme reading held, as a clipped lookup table
+    leaves it). Returns the fits."""
+    out: dict[str, dict[str, Any]] = {}
+    for sensor, angle in ms.fitted_geometries(meas).items():
+        if angle not in measured or angle in meas.channels or angle not in ref_pred:
+            continue
+        d, th = measured[angle], ref_pred[angle]
+        span = float(np.ptp(d)) or 1.0
+        sat = (d >= np.max(d) - 1e-9 * span) | (d <= np.min(d) + 1e-9 * span)
+        sat &= _held(d, sat)
+        ok = ~sat & np.isfinite(th)
+        den = float(np.sum(th[ok] ** 2))
+        if ok.sum() < 10 or not den > 0:
+            raise InputError(f"{meas.label}: {sensor}: too few samples to fit its radius "
+                             f"against the model's {angle}")
+        c = float(np.sum(d[ok] * th[ok]) / den)
+        if c == 0.0:
+            raise InputError(f"{meas.label}: {sensor}: does not move with the model's {angle}")
+        theta = d / c
+        theta[sat] = math.nan
+        measured[angle] = theta
+        resid = d[ok] - c * th[ok]
+        out[angle] = {"channel": sensor, "radius_m": abs(c), "sign": 1 if c > 0 else -1,
+                      "samples": int(ok.sum()), "saturated": int(sat.sum()),
+                      "rms_m": float(np.sqrt(np.mean(resid ** 2)))}
+    return out
+
+
+def _held(d: np.ndarray, extreme: np.ndarray) -> np.ndarray:
+    """Of the samples at an extreme, those held there (two or more in a row): a sensor's
+    saturation, not a single sample that happens to be the extreme."""
+    prev = np.r_[False, extreme[:-1]]
+    nxt = np.r_[extreme[1:], False]
+    return extreme & (prev | nxt)
+
+
 def predicted_channels(result: SimResult, time: np.ndarray, names: Sequence[str],
-                       relative: dict[str, bool]) -> dict[str, np.ndarray]:
-    """A simulation's channels on the measurement's samples (NaN past its end; zero if absent)."""
+                       relative: dict[str, bool], rest_at_start: bool = False
+                       ) -> dict[str, np.ndarray]:
+    """A simulation's channels on the measurement's samples (NaN past its end; zero if absent).
+    Relative channels from the rest: the mean of the simulation's first ``REST_S``, or with
+    ``rest_at_start`` its first sample (the rest state it starts from: under the motion
+    input the key moves from t = 0, as an imported stroke's starts at its onset, and the
+    first 10 ms are not at rest)."""
     out = {}
     rt = result.time
     for c in names:
@@ -181,7 +254,7 @@ def predicted_channels(result: SimResult, time: np.ndarray, names: Sequence[str]
         if x.size == 0:
             out[c] = np.full(time.shape, math.nan)
             continue
-        rest = rt < min(ms.REST_S, rt[0] + ms.REST_S)
+        rest = rt <= rt[0] if rest_at_start else rt < min(ms.REST_S, rt[0] + ms.REST_S)
         off = _rest_value(rt, x, rest) if relative[c] else 0.0
         y = np.interp(time, rt, x) - off
         if rt.size > 1:
@@ -197,7 +270,7 @@ def local_shift(time: np.ndarray, measured: np.ndarray, model: np.ndarray, t_eve
     if not math.isfinite(t_event):
         return math.nan
     win = (time >= t_event - half_window) & (time <= t_event + half_window)
-    ok = win & np.isfinite(model)
+    ok = win & np.isfinite(model) & np.isfinite(measured)
     if ok.sum() < 5:
         return math.nan
     tw, mw = time[ok], measured[ok]
@@ -265,6 +338,19 @@ def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.
     return ev, src
 
 
+def order_flags(events: dict[str, float], tolerance_s: float = 0.0) -> list[str]:
+    """The measured events that contradict the order of a blow (``BLOW_ORDER``: let-off
+    after the strike, a key release before the strike, ...), one line per pair out of
+    order by more than ``tolerance_s``."""
+    out = []
+    for a, b in BLOW_ORDER:
+        ta, tb = events.get(a, math.nan), events.get(b, math.nan)
+        if math.isfinite(ta) and math.isfinite(tb) and ta > tb + tolerance_s:
+            out.append(f"{a} at {ta * 1e3:.2f} ms is after {b} at {tb * 1e3:.2f} ms: the "
+                       f"order of a blow says otherwise; one of them is wrong")
+    return out
+
+
 def phases_from(events: dict[str, float], t_end: float) -> list[tuple[str, float, float]]:
     """Phase windows [start, end) bounded by the events; phases whose events are missing
     run to the next event that happened."""
@@ -294,16 +380,21 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
     if not models:
         raise InputError("models: expected at least one model")
     time, names, measured = prepare(meas, input, duration, channels)
-    rel = {c: meas.relative(c) for c in names}
+    # (a fitted sensor's angle is relative, as the encoder angles are)
+    rel = {c: meas.relative(c) or (c not in meas.channels and CHANNEL_UNITS.get(c) == "rad")
+           for c in names}
     sims = list(results) if results is not None else [
         ms.simulate(m, meas, input, duration) for _, m in models]
-    preds = [predicted_channels(r, time, names, rel) for r in sims]
+    preds = [predicted_channels(r, time, names, rel, input == "motion") for r in sims]
     ref_i = next((i for i, r in enumerate(sims) if r.success), 0)
+    fitted = fit_geometries(meas, time, measured, preds[ref_i])
     events, src = measured_events(meas, time, measured, sims[ref_i], preds[ref_i])
+    flags = order_flags(events, 0.5 / meas.rate)
     t_end = float(time[-1]) + 1.0 / meas.rate
     phases = phases_from(events, t_end)
-    ranges = {c: float(np.ptp(measured[c])) or 1.0 for c in names}
-    noise = {c: ms.noise_sigma(measured[c]) for c in names}
+    ranges = {c: float(np.nanmax(measured[c]) - np.nanmin(measured[c])) or 1.0
+              for c in names}
+    noise = {c: ms.noise_sigma(measured[c][np.isfinite(measured[c])]) for c in names}
     # measured hammer speed: the reference model's head speed scaled by the ratio of the
     # hammer's angular speeds before the strike (the head's lever is the model's geometry)
     ref = sims[ref_i]
@@ -319,7 +410,8 @@ def compare(meas: Measurement, models: Sequence[tuple[str, ActionModel]], input:
         i = int(np.searchsorted(meas.time, meas.events["strike"], side="right")) - 1
         speed = float(meas.channels["hammer_head_velocity"][max(i, 0)])
     comp = Comparison(meas, input, time, names, measured, ranges, noise, events, src, speed,
-                      phases, inputs=_tracking(meas, input, time, ref, names))
+                      phases, inputs=_tracking(meas, input, time, ref, names), fitted=fitted,
+                      flags=flags)
     for (label, _), res, pred in zip(models, sims, preds, strict=True):
         comp.models.append(_score(comp, label, res, pred))
     return comp
@@ -338,7 +430,8 @@ def _tracking(meas: Measurement, input: str, time: np.ndarray, ref: SimResult,
         return {}
     rest = meas.rest_mask()
     window = (meas.time >= 0) & (meas.time <= time[-1] + 1e-9)
-    pred = predicted_channels(ref, time, names, {c: meas.relative(c) for c in names})
+    pred = predicted_channels(ref, time, names, {c: meas.relative(c) for c in names},
+                              rest_at_start=True)
     out = {}
     for c in names:
         x = meas.channels[c]
@@ -358,7 +451,8 @@ def _score(comp: Comparison, label: str, res: SimResult,
         rms = float(np.sqrt(np.mean(r ** 2))) if r.size else math.nan
         errors[c] = ChannelError(rms, rms / comp.ranges[c],
                                  float(np.max(np.abs(r))) if r.size else math.nan,
-                                 comp.measurement.units.get(c, ""), c in res.channels)
+                                 comp.measurement.units.get(c, "") or CHANNEL_UNITS.get(c, ""),
+                                 c in res.channels)
     perphase: dict[str, dict[str, float]] = {}
     for c in comp.channels:
         perphase[c] = {}
@@ -390,8 +484,13 @@ def table(comp: Comparison) -> str:
         lines.append(f"{c + ' [' + units + ']':<26}{'input':>8}   the key's measured motion "
                      f"drives the models ({labels[0]} follows it within {rms:.3g} {units} "
                      f"RMS; not scored)")
+    for c, f in comp.fitted.items():
+        lines.append(f"{c + ' [rad]':<26}{'fitted':>8}   read from {f['channel']} through a "
+                     f"radius fitted to {labels[0]}: {f['radius_m'] * 1e3:.3g} mm (sign "
+                     f"{f['sign']:+d}, fit RMS {f['rms_m'] * 1e3:.3g} mm, "
+                     f"{f['saturated']} saturated samples left out)")
     for c in comp.channels:
-        units = comp.measurement.units.get(c, "")
+        units = comp.measurement.units.get(c, "") or CHANNEL_UNITS.get(c, "")
         for kind, key in (("RMS", "rms"), ("norm.", "nrms"), ("max", "max")):
             vals = []
             for m in comp.models:
@@ -412,4 +511,5 @@ def table(comp: Comparison) -> str:
                 meas_v) else "   (not found in the measurement)"))
     fails = [f"{m.label}: simulation failed ({m.result.message})" for m in comp.models
              if not m.ok]
-    return "\n".join(lines + fails)
+    flags = [f"warning: measured events out of order: {f}" for f in comp.flags]
+    return "\n".join(lines + fails + flags)

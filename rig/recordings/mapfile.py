@@ -117,14 +117,30 @@ def mapping(value: Any, where: Where, keys: set[str]) -> _Map:
 class Geometry:
     """A displacement measured at ``radius`` (m) from a body's pivot, read as its angle:
     ``arc`` (the sensor follows the arc: angle = d / r) or ``sine`` (it reads the
-    displacement normal to the body at rest: angle = asin(d / r))."""
+    displacement normal to the body at rest: angle = asin(d / r)). ``radius_m`` None: the
+    radius is a fitted unknown (``radius: fit``): the channel is stored as the
+    displacement and ``rig compare`` reads it as the angle of the body ``angle_of``
+    through the radius (and direction) that best fits the model (arc only)."""
 
-    radius_m: float
+    radius_m: float | None
     model: str = "arc"
+    angle_of: str | None = None
+
+    @property
+    def fitted(self) -> bool:
+        return self.radius_m is None
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.radius_m is None:
+            return {"radius_m": None, "radius": "fit", "model": self.model,
+                    "angle_of": self.angle_of}
+        return {"radius_m": self.radius_m, "model": self.model}
 
     def angle(self, d: Any) -> Any:
         import numpy as np
 
+        if self.radius_m is None:
+            raise InputError("geometry: the radius is fitted by rig compare, not known here")
         ratio = np.asarray(d, float) / self.radius_m
         if self.model == "arc":
             return ratio
@@ -153,8 +169,7 @@ class ColumnMap:
         return {"column": self.source, "index": self.index, "channel": self.channel,
                 "units": self.units, "stored_units": self.stored_units,
                 "calibration": [s.describe() for s in self.steps],
-                "geometry": None if self.geometry is None else
-                {"radius_m": self.geometry.radius_m, "model": self.geometry.model}}
+                "geometry": None if self.geometry is None else self.geometry.to_dict()}
 
 
 @dataclass
@@ -226,28 +241,49 @@ def _column(raw: Any, where: Where, vocabulary: Mapping[str, tuple[str, str]]) -
     geometry = None
     if "geometry" in c:
         wg = where.key(c, "geometry")
-        g = mapping(c["geometry"], wg, {"radius", "radius_units", "model"})
+        g = mapping(c["geometry"], wg, {"radius", "radius_units", "model", "angle_of"})
         if "radius" not in g:
-            raise wg.fail("radius: missing")
+            raise wg.fail("radius: missing (a length, or fit)")
+        fit = g["radius"] == "fit"
+        if fit and "angle_of" not in g:
+            raise wg.fail("angle_of: missing (radius: fit needs the model's angle channel "
+                          "the displacement is read as, e.g. hammer_angle)")
+        if not fit and "angle_of" in g:
+            raise wg.key(g, "angle_of").fail("only with radius: fit (with a known radius the "
+                                             "channel itself is stored as the angle)")
+        if fit and (g["angle_of"] not in vocabulary or vocabulary[g["angle_of"]][0] != "rad"):
+            angles = sorted(n for n, (u, _) in vocabulary.items() if u == "rad")
+            raise wg.key(g, "angle_of").fail(f"expected one of the model's angle channels "
+                                             f"({', '.join(angles)}), got {g['angle_of']!r}")
         runits = _units(g.get("radius_units", "m"), wg.key(g, "radius_units"))
         if UNITS[runits][0] != LENGTH:
             raise wg.key(g, "radius_units").fail(f"expected a length, got {runits!r}")
         model = g.get("model", "arc")
         if model not in ("arc", "sine"):
             raise wg.key(g, "model").fail(f"expected arc or sine, got {model!r}")
+        if fit and model != "arc":
+            raise wg.key(g, "model").fail("radius: fit reads the displacement on the arc "
+                                          "(model: arc) only")
         if si != LENGTH:
             raise where.key(c, "units").fail(
                 f"a geometry reads a displacement as an angle: units must be a length, "
                 f"got {units!r}")
-        geometry = Geometry(number(g["radius"], wg.key(g, "radius"), positive=True)
-                            * UNITS[runits][1], model)
-        si = "rad"
+        if fit:  # stored as the displacement; rig compare fits the radius
+            geometry = Geometry(None, model, str(g["angle_of"]))
+        else:
+            geometry = Geometry(number(g["radius"], wg.key(g, "radius"), positive=True)
+                                * UNITS[runits][1], model)
+            si = "rad"
     desc = c.get("description", "")
     if not isinstance(desc, str):
         raise where.key(c, "description").fail(f"expected text, got {desc!r}")
     if channel in vocabulary:
         want, doc = vocabulary[channel]
         if si != want:
+            if geometry is not None and geometry.fitted:
+                raise w.fail(f"radius: fit stores the displacement under a channel of its "
+                             f"own: {channel} is the model's; name the sensor (e.g. "
+                             f"{str(geometry.angle_of).replace('_angle', '')}_rise)")
             raise (where.key(c, "units") if geometry is None else where.key(c, "geometry")
                    ).fail(f"channel {channel} is stored in {want}, and {units!r}"
                           f"{' through the geometry' if geometry else ''} gives {si}")

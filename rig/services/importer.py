@@ -149,7 +149,7 @@ def read_recording(m: mapfile.ImportMap, path: Path) -> Recording:
         where = f"{path}: column {c.source!r} ({m.path.name} line {c.line}, {c.channel})"
         y, nclip = cal.apply(c.steps, x, t, where)
         y = y * c.factor
-        if c.geometry is not None:
+        if c.geometry is not None and not c.geometry.fitted:
             y = c.geometry.angle(y)
         if not np.all(np.isfinite(y)):
             raise InputError(f"{where}: the calibration gives values that are not finite")

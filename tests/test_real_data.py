@@ -1,0 +1,190 @@
+"""The model driven by a real action's measured key (issue 38): the Kawai KG-3C recording of
+examples/kawai-kg3c/ imported, the key made to follow it both ways, the model's strikes
+held against the real hammer's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rig.analysis import measurement as ms
+from rig.model.action import ActionModel, SimResult
+from rig.services import importer
+
+ROOT = Path(__file__).resolve().parents[1]
+KAWAI = ROOT / "examples" / "kawai-kg3c"
+KAWAI_TXT = KAWAI / "hammer_damper_2K_17b.txt"
+
+# a string contact that begins less than this after the previous one ended is the same
+# blow's re-strike (the hammer bouncing back up), not a blow of its own
+REBOUND_S = 0.030
+
+
+def _import(tmp_path: Path, min_rest_s: float | None = None) -> Path:
+    """The shipped recording imported through its map; with ``min_rest_s`` the strokes
+    closer than it are one trial (0.1 s: the eight repeated notes become one trial)."""
+    text = (KAWAI / "map.yaml").read_text()
+    if min_rest_s is not None:
+        text = text.replace("segment:\n  channel: key_dip\n",
+                            f"segment:\n  channel: key_dip\n  min_rest_s: {min_rest_s}\n")
+        assert "min_rest_s" in text
+    m = tmp_path / "map.yaml"
+    m.write_text(text)
+    out = tmp_path / "kawai.h5"
+    importer.import_files([KAWAI_TXT], m, out)
+    return out
+
+
+def real_strikes(meas: ms.Measurement) -> np.ndarray:
+    """Times the real hammer reached the string: its shank sensor rising through 90 % of its
+    top (the sensor saturates there, a few mm below the string), each counted once until it
+    falls back below 50 %."""
+    h = meas.channels["hammer_shank_rise"]
+    top = float(np.max(h))
+    out, up = [], False
+    for t, v in zip(meas.time, h, strict=True):
+        if not up and v > 0.9 * top:
+            up = True
+            out.append(t)
+        elif up and v < 0.5 * top:
+            up = False
+    return np.array(out)
+
+
+def model_contacts(res: SimResult) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end times of the model's hammer-string contacts (contact 12)."""
+    on = res.contact("contact_penetration", 12) > 0
+    d = np.diff(on.astype(int))
+    return res.time[np.nonzero(d == 1)[0] + 1], res.time[np.nonzero(d == -1)[0] + 1]
+
+
+def blows(res: SimResult) -> tuple[np.ndarray, int]:
+    """The model's blows (a string contact starting REBOUND_S or more after the previous one
+    ended) and the count of re-strikes (those starting sooner)."""
+    on, off = model_contacts(res)
+    out, again = [], 0
+    for k, t in enumerate(on):
+        if k and t - off[k - 1] < REBOUND_S:
+            again += 1
+        else:
+            out.append(t)
+    return np.array(out), again
+
+
+def tracking_rms(meas: ms.Measurement, res: SimResult) -> float:
+    dip = meas.channels["key_dip"] - float(np.mean(meas.channels["key_dip"][meas.rest_mask()]))
+    e = res.channels["key_dip"] - np.interp(res.time, meas.time, dip)
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+@pytest.mark.slow
+def test_repeated_notes_make_as_many_blows_as_the_real_action(tmp_path):
+    run = _import(tmp_path, min_rest_s=0.1)
+    meas = ms.load(run, [7], input="motion")[0]
+    assert meas.metadata["segments"][7]["presses"] == 9  # eight notes and the half press
+    real = real_strikes(meas)
+    assert real.size == 8
+    res = ms.simulate(ActionModel.from_yaml(None), meas, "motion")
+    assert res.success
+    # the key follows the measured motion both ways (push-only: 1.8 mm RMS, 6.1 mm worst)
+    assert tracking_rms(meas, res) < 0.3e-3
+    got, again = blows(res)
+    # as many blows as the real hammer made, each within 10 ms of the real one (the
+    # push-only drive made 9, one of them 62 ms before any real strike, and struck first
+    # 10 ms early); the half press strikes in neither
+    assert got.size == real.size, (got, real)
+    assert np.max(np.abs(got - real)) < 0.010, (got, real)
+    # the model's hammer re-strikes within 15 ms in some of them, where the real hammer's
+    # sensor falls straight back: a model discrepancy (the back check, issue 38), counted
+    assert 0 <= again <= real.size
+
+
+@pytest.mark.slow
+def test_single_blows_strike_when_the_real_hammer_did(tmp_path):
+    run = _import(tmp_path)
+    model = ActionModel.from_yaml(None)
+    for k in (4, 6):  # single fast presses, the key held
+        meas = ms.load(run, [k], input="motion")[0]
+        real = real_strikes(meas)
+        assert real.size == 1
+        res = ms.simulate(model, meas, "motion")
+        got, again = blows(res)
+        assert got.size == 1 and again == 0, (k, got)
+        # push-only: 2-5 ms early; followed both ways: within 1.5 ms
+        assert abs(got[0] - real[0]) < 0.002, (k, got, real)
+        assert abs(res.events["strike"] - got[0]) < 1e-3
+        assert tracking_rms(meas, res) < 0.5e-3
+
+
+# --- a sensor's radius fitted: the Kawai's hammer shank sensor compared as hammer_angle ---
+
+def test_a_fitted_radius_recovers_the_sensor_and_leaves_its_saturation_out():
+    from rig.analysis import compare as cp
+
+    t = np.arange(-0.05, 0.2, 0.0005)
+    theta = np.where(t > 0, -0.37 * np.sin(np.clip(t, 0, 0.1) * np.pi / 0.2) ** 2, 0.0)
+    d = -0.0093 * theta                          # a shank rising 9.3 mm per rad
+    d_read = np.minimum(d, 0.003)                # the sensor saturates at 3 mm
+    meas = ms.Measurement(t, {"hammer_shank_rise": d_read}, {"hammer_shank_rise": "m"},
+                          metadata={"import": {"columns": [{
+                              "channel": "hammer_shank_rise", "geometry": {
+                                  "radius_m": None, "radius": "fit", "model": "arc",
+                                  "angle_of": "hammer_angle"}}]}})
+    assert ms.fitted_geometries(meas) == {"hammer_shank_rise": "hammer_angle"}
+    time, names, measured = cp.prepare(meas, "motion")
+    assert names == ["hammer_angle"]
+    w = t >= 0
+    fit = cp.fit_geometries(meas, time, measured, {"hammer_angle": theta[w]})
+    f = fit["hammer_angle"]
+    assert abs(f["radius_m"] - 0.0093) < 1e-12 and f["sign"] == -1 and f["rms_m"] < 1e-12
+    sat = d[w] > 0.003
+    assert f["saturated"] == int(sat.sum()) > 10
+    got = measured["hammer_angle"]
+    assert np.all(np.isnan(got[sat])) and np.allclose(got[~sat], theta[w][~sat])
+
+
+@pytest.mark.slow
+def test_compare_by_motion_runs_on_a_kawai_stroke_through_the_cli(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from rig.cli import app
+
+    run = _import(tmp_path)
+    r = CliRunner().invoke(app, ["compare", str(run), "--input", "motion", "--trial", "4"])
+    assert r.exit_code == 0, r.output
+    assert "hammer_angle [rad]          fitted   read from hammer_shank_rise through a " \
+           "radius fitted to base model: " in r.output
+    j = CliRunner().invoke(app, ["compare", str(run), "--input", "motion", "--trial", "4",
+                                 "--json"])
+    assert j.exit_code == 0, j.output
+    doc = json.loads(j.output[j.output.index("{"):])
+    comp = doc["trials"][0]
+    f = comp["fitted"]["hammer_angle"]
+    # the shank sensor sits about a centimetre from the flange (not given by the source)
+    assert 0.005 < f["radius_m"] < 0.015 and f["sign"] == -1
+    assert comp["channels"] == ["hammer_angle"] and "key_dip" in comp["inputs"]
+    err = comp["models"][0]["errors"]["hammer_angle"]
+    assert err["nrms"] < 0.15 and err["units"] == "rad"
+    assert abs(comp["models"][0]["event_errors"]["strike time"]) < 2.0  # ms
+
+
+def test_events_out_of_the_order_of_a_blow_are_flagged():
+    from rig.analysis import compare as cp
+
+    good = {"key_starts": 0.001, "toe_meets_button": 0.028, "let_off": 0.030, "strike": 0.032,
+            "string_release": 0.0335, "check": 0.056, "key_bottom": 0.034,
+            "key_release": 0.6}
+    assert cp.order_flags(good) == []
+    bad = dict(good, let_off=0.0335, key_release=0.02)
+    flags = cp.order_flags(bad)
+    assert len(flags) == 2, flags  # let-off after the strike; the key released too early
+    assert flags[0].startswith("let_off at 33.50 ms is after strike at 32.00 ms")
+    assert any(f.startswith("key_bottom at 34.00 ms is after key_release at 20.00 ms")
+               for f in flags)
+    # within the tolerance (half a sample) is not a contradiction
+    assert cp.order_flags(dict(good, let_off=0.0322), tolerance_s=0.00025) == []
+    assert cp.order_flags(dict(good, strike=float("nan"))) == []
