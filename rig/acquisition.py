@@ -27,7 +27,6 @@ Messages to the run (queue ``status``): ("ready",), ("started",),
 from __future__ import annotations
 
 import contextlib
-import errno
 import functools
 import os
 import queue
@@ -41,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, runfile
+from rig import calrecords, journal, runfile
 from rig.backends import open_reader
 from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 from rig.config import RigConfig, from_mapping
@@ -73,14 +72,18 @@ class _Trial:
     rows: list[np.ndarray] = field(default_factory=list)
     commands: list[dict[str, np.ndarray]] = field(default_factory=list)
     writer: runfile.TrialWriter | None = None
+    announced: bool = False   # its attributes are in the journal
 
 
 class Acquisition:
     """The acquisition loop (runs inside the acquisition process; testable in-process)."""
 
     def __init__(self, cfg: RigConfig, cals: dict[str, CalRecord], writer: runfile.RunWriter,
-                 ctrl: Any, status: Any) -> None:
+                 ctrl: Any, status: Any, jw: journal.JournalWriter | None = None) -> None:
         self.cfg, self.cals, self.writer = cfg, cals, writer
+        self.journal = jw
+        self.h5_failed: BaseException | None = None  # a write to the HDF5 file failed
+        self.journaled = 0   # samples whose journal record is whole (flushed for good)
         self.ctrl, self.status = ctrl, status
         self.trials: list[_Trial] = []
         self.next_sample = 0
@@ -139,24 +142,53 @@ class Acquisition:
             self.trials[int(i)].rows.append(rows[which == i])
 
     def write_pending(self) -> None:
+        """Write what arrived since the last flush: to the journal first (each block a whole
+        record, rig.journal), then to the HDF5 file, then flush it. A failed HDF5 write is
+        kept in ``h5_failed``: nothing more goes to that file (the journal has it all)."""
         self.check_space()
+        blocks: list[tuple[_Trial, str, dict[str, np.ndarray], Any, Any]] = []
+        new_trials = []
+        rows = 0
         for tr in self.trials:
-            if tr.writer is None and (tr.rows or tr.commands):
-                tr.writer = self.writer.trial(tr.index)
-                tr.writer.set_attrs(t0=tr.profile_start / self.cfg.rates.acquisition_hz,
-                                    record_start_sample=tr.record_start,
-                                    profile_start_sample=tr.profile_start)
+            if tr.writer is None and not tr.announced and (tr.rows or tr.commands):
+                new_trials.append(tr)
             if tr.rows:
                 block = np.vstack(tr.rows)
                 tr.rows.clear()
+                rows += block.shape[0]
                 data = calrecords.convert(block, self.cfg, self.cals, tr.profile_start)
-                assert tr.writer is not None
-                tr.writer.append("channels", data, self.units, self.docs)
+                blocks.append((tr, "channels", data, self.units, self.docs))
             for cmd in tr.commands:
-                assert tr.writer is not None
-                tr.writer.append("commands", cmd, COMMAND_UNITS, COMMAND_DOCS)
+                blocks.append((tr, "commands", cmd, COMMAND_UNITS, COMMAND_DOCS))
             tr.commands.clear()
-        self.writer.flush()
+        if self.journal is not None:
+            for tr in new_trials:
+                self.journal.trial(tr.index, self._trial_attrs(tr))
+                tr.announced = True
+            for tr, section, data, units, docs in blocks:
+                self.journal.append(tr.index, section, data, units, docs)
+            self.journaled += rows
+        if self.h5_failed is not None:
+            return
+        try:
+            for tr in new_trials:
+                tr.announced = True
+            for tr, section, data, units, docs in blocks:
+                if tr.writer is None:
+                    tr.writer = self.writer.trial(tr.index)
+                    tr.writer.set_attrs(**self._trial_attrs(tr))
+                journal.fault_point("HDF5 append")
+                tr.writer.append(section, data, units, docs)
+            journal.fault_point("HDF5 flush")
+            self.writer.flush()
+        except Exception as exc:
+            self.h5_failed = exc
+            raise
+
+    def _trial_attrs(self, tr: _Trial) -> dict[str, Any]:
+        return {"t0": tr.profile_start / self.cfg.rates.acquisition_hz,
+                "record_start_sample": tr.record_start,
+                "profile_start_sample": tr.profile_start}
 
     def check_space(self) -> None:
         """DiskFull before a write that could meet a full disk: HDF5 after ENOSPC may leave a
@@ -173,10 +205,17 @@ class Acquisition:
 
     def finish(self, status: str, metadata: dict[str, Any], trial_attrs: dict[int, Any]) -> None:
         self.write_pending()
+        if self.journal is not None:
+            for name, value in metadata.items():
+                self.journal.metadata(name, value)
+            for k, attrs in trial_attrs.items():
+                self.journal.trial(int(k), attrs)
+            self.journal.close_record(status)
         for name, value in metadata.items():
             self.writer.add_metadata(name, value)
         for k, attrs in trial_attrs.items():
             self.writer.trial(int(k)).set_attrs(**attrs)
+        journal.fault_point("HDF5 close")
         self.writer.close(status)
 
 
@@ -216,14 +255,19 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     controller_pid = controller_pid or os.getppid()
+    journal.set_process("acquisition")
     cfg = from_mapping(cfg_data)
     records = {k: CalRecord(**v) for k, v in cals.items()}
-    writer = runfile.RunWriter(Path(path), "measured", metadata, crash_safe=True)
-    acq = Acquisition(cfg, records, writer, ctrl, status)
     code = 0
     reader = None
     watch: ControllerWatch | None = None
+    writer: runfile.RunWriter | None = None
+    acq: Acquisition | None = None
     try:
+        writer = runfile.RunWriter(Path(path), "measured", metadata, crash_safe=True)
+        jw = journal.JournalWriter.create(path)
+        acq = Acquisition(cfg, records, writer, ctrl, status, jw)
+        jw.begin(Path(path), "measured", dict(writer.file.attrs), metadata)
         reader = open_reader(spec)
         watch = ControllerWatch(controller_pid, functools.partial(make_safe, reader, cfg))
         watch.start()
@@ -279,34 +323,24 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
     except _ControllerDied as exc:
         code = 1
         why = str(exc)
-        if reader is not None:  # every sample the card buffered up to the death
+        if reader is not None and acq is not None:  # every sample the card buffered
             _drain(acq, reader, exc.watch)
         if exc.watch.error:
             why += f" (making the rig safe failed: {exc.watch.error})"
         _abort(acq, writer, f"aborted: {why}")
-    except DiskFull as exc:  # nothing more written: close with what the file has
+    except Exception as exc:  # a full disk, a card fault, anything: the reason, exit 1
         code = 1
-        writer.close(f"aborted: {exc}")
-        status.put(("error", str(exc)))
-    except OSError as exc:
-        code = 1
-        if exc.errno == errno.ENOSPC:
-            msg = f"disk full ({exc})"
-            with contextlib.suppress(Exception):
-                writer.close(f"aborted: {msg}")
+        full = isinstance(exc, DiskFull) or journal.is_disk_full(exc)
+        if full:
+            msg = str(exc) if isinstance(exc, DiskFull) else _disk_full_message(acq, path)
+        elif isinstance(exc, DaqFault):
+            msg = str(exc)
         else:
-            msg = f"acquisition failed: {type(exc).__name__}: {exc}"
-            _abort(acq, writer, f"aborted: {msg}")
+            msg = f"acquisition failed: {type(exc).__name__}: {str(exc).splitlines()[0]}"
+        _abort(acq, writer, f"aborted: {msg}", write=not full)
+        if not full and not isinstance(exc, DaqFault | OSError):
+            msg += "\n" + traceback.format_exc(limit=3)
         status.put(("error", msg))
-    except DaqFault as exc:
-        code = 1
-        _abort(acq, writer, f"aborted: {exc}")
-        status.put(("error", str(exc)))
-    except Exception as exc:  # report anything else as the reason, then exit non-zero
-        code = 1
-        msg = f"acquisition failed: {type(exc).__name__}: {exc}"
-        _abort(acq, writer, f"aborted: {msg}")
-        status.put(("error", msg + "\n" + traceback.format_exc(limit=3)))
     finally:
         if watch is not None:
             orphaned = watch.dead.is_set()
@@ -317,16 +351,40 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                 reader.release_orphaned()
     if code:
         # the file is closed and the reason sent: exit now, so the run's process sees the death
-        # at once (an interpreter's teardown with numba and h5py loaded takes seconds under load)
+        # at once (an interpreter's teardown with numba and h5py loaded takes seconds under
+        # load); after a failed HDF5 write this also skips h5py's teardown of its handles
         with contextlib.suppress(Exception):
             status.close()
             status.join_thread()
         os._exit(code)
 
 
-def _abort(acq: Acquisition, writer: runfile.RunWriter, status: str) -> None:
+def _disk_full_message(acq: Acquisition | None, path: str) -> str:
+    where = Path(path).parent
+    if acq is None:
+        return f"disk full (no space left in {where} to begin the run file)"
+    return (f"disk full (no space left in {where} at sample {acq.next_sample}; the "
+            f"{acq.journaled} samples flushed before it are kept)")
+
+
+def _abort(acq: Acquisition | None, writer: runfile.RunWriter | None, status: str,
+           write: bool = True) -> None:
+    """Write what is pending (unless ``write`` is False: the disk is full) and close the
+    journal and the file ``status``. Nothing more goes to an HDF5 file whose write failed:
+    HDF5 after a failed write may fail again, or crash, as its handles are closed."""
     try:
-        acq.poll()
-        acq.write_pending()
+        if acq is not None and write:
+            acq.poll()
+            acq.write_pending()
+    except Exception as exc:  # (the journal has what was flushed)
+        write = False
+        if acq is not None and acq.h5_failed is None and journal.is_disk_full(exc):
+            acq.h5_failed = exc
     finally:
-        writer.close(status)
+        if acq is not None and acq.journal is not None:
+            with contextlib.suppress(OSError):
+                acq.journal.close_record(status)
+        if writer is not None and (acq is None or acq.h5_failed is None):
+            with contextlib.suppress(Exception):
+                journal.fault_point("HDF5 close")
+                writer.close(status)

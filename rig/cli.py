@@ -462,6 +462,26 @@ def run_profile(
 # ---- end of rig run ----
 
 
+@app.command()
+def recover(
+    run: Annotated[Path, typer.Argument(help="run file (.h5) with its journal RUN.h5.journal")],
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="write the rebuilt run file here instead of over RUN.h5")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+) -> None:
+    """Rebuild a run file from the journal its run left beside it (a full disk, a killed or
+    crashed run): every block the acquisition flushed, the loop's records, the status."""
+    from rig import journal
+
+    try:
+        rec = journal.recover(run, out=out, force=force)
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
+    torn = "; a last record cut short was dropped" if rec.torn else ""
+    _plain(f"recovered {rec.path}: {rec.trials} trials, {rec.samples} samples, status "
+           f"{rec.status}{torn}")
+
+
 def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | None:
     """Issue 18: the learned-feedforward record for this profile, rig and calibration."""
     from rig import profiles

@@ -63,6 +63,10 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"cannot store {type(obj).__name__} in run-file metadata")
 
 
+metadata_text = _text          # (value -> (text, format)): the journal stores metadata alike
+json_default = _json_default   # numpy values in JSON
+
+
 # names of run files written before the technicians' names (old -> new); old files are
 # recognised by their "escapement" event (the old "let_off" was the toe meeting the button)
 LEGACY_EVENT_NAMES = {"let_off": "toe_meets_button", "escapement": "let_off",

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import math
 import multiprocessing as mp
 import os
@@ -39,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import loadcell, motor_torque, pacing, profiles, recovery, runfile
+from rig import journal, loadcell, motor_torque, pacing, profiles, recovery, runfile
 from rig.acquisition import run_acquisition
 from rig.analysis import events
 from rig.backends import open_daq
@@ -167,13 +168,15 @@ FILE_OVERHEAD = 2 * 1024 * 1024  # bytes: metadata (config, profile, records) an
 def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
                      folder: Path) -> int:
     """Refuse (one-line ValueError) a run whose file would not fit in ``folder``'s free space
-    (the whole run's samples at ``bytes_per_sample``, the file's overhead and the margin the
+    (the whole run's samples at ``bytes_per_sample``, twice: the file and its journal; the
+    file's overhead and the margin the
     acquisition keeps free); the estimate in bytes."""
     from rig.acquisition import SPACE_MARGIN, bytes_per_sample
 
     seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
-    need = int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) + FILE_OVERHEAD \
-        + SPACE_MARGIN
+    # the samples twice: in the run file and in its journal (rig.journal)
+    need = 2 * int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) \
+        + FILE_OVERHEAD + SPACE_MARGIN
     probe = folder
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
@@ -251,6 +254,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
     feedforward instead of the advance or the motor compensation."""
     say = on_line or (lambda s: None)
+    journal.set_process("run")
     if trials < 1:
         raise InputError(f"trials: expected at least 1, got {trials}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
@@ -464,27 +468,57 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     try:
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
-        samples = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
-                          (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
+        fin = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
+                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
         daq.close()
         if drive is not None:
             _safe(drive.close)
         if sim_drive is not None:
             sim_drive.close()
+    if fin.left is not None:  # a full disk: the journal holds the run for `rig recover`
+        return RunReport(path, fin.left, last_tick + 1, stats, None, {})
+    samples = fin.samples
     read_back = runfile.read(path)
     final = read_back.status
     # no repeatability figure over truncated trials: only a complete run gets one
     rep = repeatability(path) if trials > 1 and final == "complete" else {}
     found = found_events(read_back, say)
     if rep or found:
-        w = runfile.RunWriter.reopen(path)
+        try:
+            _add_findings(path, final, rep, found)
+        except Exception as exc:
+            if not journal.is_disk_full(exc):
+                raise
+            left = recovery.after_failed_write(
+                path, f"aborted: disk full ({path.parent}) while adding the events found")
+            return RunReport(path, left, last_tick + 1, stats, None, {})
+    # the run file is whole: its journal is no longer needed
+    with contextlib.suppress(OSError):
+        journal.journal_path(path).unlink()
+    return RunReport(path, final, last_tick + 1, stats, samples, rep)
+
+
+def _add_findings(path: Path, final: str, rep: dict[str, Any],
+                  found: dict[int, dict[str, float]]) -> None:
+    """The repeatability and the events found, added to the closed run file."""
+    from rig.acquisition import SPACE_MARGIN
+
+    if shutil.disk_usage(path.parent).free < SPACE_MARGIN:
+        raise OSError(errno.ENOSPC, f"No space left on device (under {SPACE_MARGIN // 1024} "
+                      f"KB free in {path.parent})")
+    journal.fault_point("HDF5 reopen")
+    w = runfile.RunWriter.reopen(path)
+    try:
         if rep:
             w.add_metadata("repeatability", rep)
         for k, ev in found.items():
             w.trial(k).write_events(ev, EVENT_DOCS, source=events.SOURCE, methods=events.METHODS)
-        w.close(final)
-    return RunReport(path, final, last_tick + 1, stats, samples, rep)
+        journal.fault_point("HDF5 events")
+    except BaseException:
+        recovery.FAILED_HANDLES.append(w)  # no close, no teardown of a failed HDF5 handle
+        raise
+    w.close(final)
 
 
 def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict[str, float]]:
