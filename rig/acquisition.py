@@ -48,6 +48,7 @@ from rig.daq import DaqFault
 from rig.errors import InputError
 from rig.supervisor import ControllerWatch, make_safe
 
+ABORT_DRAIN_S = 0.8  # s: the wait for the samples of an aborted run's last ticks
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
 
 
@@ -84,6 +85,7 @@ class Acquisition:
         self.journal = jw
         self.h5_failed: BaseException | None = None  # a write to the HDF5 file failed
         self.journaled = 0   # samples whose journal record is whole (flushed for good)
+        self.pending = 0     # samples taken since the last flush
         self.ctrl, self.status = ctrl, status
         self.trials: list[_Trial] = []
         self.next_sample = 0
@@ -132,6 +134,7 @@ class Acquisition:
                 counter[np.flatnonzero(np.diff(counter) != 1)[0]]) + 1
             raise DaqFault(f"gap in the sample counter at sample {bad}")
         self.next_sample = int(counter[-1]) + 1
+        self.pending += rows.shape[0]
         if not self.trials:
             raise DaqFault("samples arrived before the first trial was announced")
         starts = [t.record_start for t in self.trials]
@@ -146,34 +149,33 @@ class Acquisition:
         record, rig.journal), then to the HDF5 file, then flush it. A failed HDF5 write is
         kept in ``h5_failed``: nothing more goes to that file (the journal has it all)."""
         self.check_space()
-        blocks: list[tuple[_Trial, str, dict[str, np.ndarray], Any, Any]] = []
+        self.pending = 0
+        blocks: list[tuple[_Trial, str, dict[str, np.ndarray], Any, Any, int]] = []
         new_trials = []
-        rows = 0
         for tr in self.trials:
             if tr.writer is None and not tr.announced and (tr.rows or tr.commands):
                 new_trials.append(tr)
             if tr.rows:
                 block = np.vstack(tr.rows)
                 tr.rows.clear()
-                rows += block.shape[0]
                 data = calrecords.convert(block, self.cfg, self.cals, tr.profile_start)
-                blocks.append((tr, "channels", data, self.units, self.docs))
+                blocks.append((tr, "channels", data, self.units, self.docs, block.shape[0]))
             for cmd in tr.commands:
-                blocks.append((tr, "commands", cmd, COMMAND_UNITS, COMMAND_DOCS))
+                blocks.append((tr, "commands", cmd, COMMAND_UNITS, COMMAND_DOCS, 0))
             tr.commands.clear()
         if self.journal is not None:
             for tr in new_trials:
                 self.journal.trial(tr.index, self._trial_attrs(tr))
                 tr.announced = True
-            for tr, section, data, units, docs in blocks:
+            for tr, section, data, units, docs, rows in blocks:
                 self.journal.append(tr.index, section, data, units, docs)
-            self.journaled += rows
+                self.journaled += rows
         if self.h5_failed is not None:
             return
         try:
             for tr in new_trials:
                 tr.announced = True
-            for tr, section, data, units, docs in blocks:
+            for tr, section, data, units, docs, _ in blocks:
                 if tr.writer is None:
                     tr.writer = self.writer.trial(tr.index)
                     tr.writer.set_attrs(**self._trial_attrs(tr))
@@ -200,8 +202,9 @@ class Acquisition:
         need = rows * bytes_per_sample(self.cfg) + cmds * 8 * len(COMMAND_UNITS)
         free = shutil.disk_usage(self.writer.path.parent).free
         if free < need + SPACE_MARGIN:
-            raise DiskFull(f"disk full ({free // 1024} KB free in {self.writer.path.parent}, "
-                           f"kept everything written so far)")
+            raise DiskFull(f"disk full ({free // 1024} KB free in {self.writer.path.parent} "
+                           f"at sample {self.next_sample}; the {self.journaled} samples "
+                           f"flushed before it are kept)")
 
     def finish(self, status: str, metadata: dict[str, Any], trial_attrs: dict[int, Any]) -> None:
         self.write_pending()
@@ -248,7 +251,21 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                     path: str, metadata: dict[str, Any], ctrl: Any, status: Any,
                     controller_pid: int | None = None) -> None:
     """Entry point of the acquisition process; it supervises ``controller_pid`` (default its
-    parent, the loop's process): see rig.supervisor."""
+    parent, the loop's process): see rig.supervisor. It ends with ``os._exit`` once the file
+    is closed and the answer sent: the run's process waits for that answer, not for an
+    interpreter's teardown (numba and h5py loaded: about a second, several under load), and
+    after a failed HDF5 write h5py's teardown of its handles is skipped."""
+    code = _acquire(spec, cfg_data, cals, path, metadata, ctrl, status, controller_pid)
+    with contextlib.suppress(Exception):
+        status.close()
+        status.join_thread()
+    os._exit(code)
+
+
+def _acquire(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any],
+             path: str, metadata: dict[str, Any], ctrl: Any, status: Any,
+             controller_pid: int | None) -> int:
+    """The acquisition (``run_acquisition``); its exit code."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # SIGTERM/SIGHUP to the whole group (a closed terminal) must not kill the file's writer:
     # the run's process decides, and if it dies the supervisor closes the file
@@ -289,10 +306,11 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                 _, _, final_status, meta, tattrs = acq.stop
                 acq.finish(final_status, meta, tattrs)
                 status.put(("done", 0))
-                return
+                return 0
         reader.start()
         status.put(("started",))
         period = cfg.acquisition.read_period_s
+        flush_rows = int(cfg.acquisition.flush_period_s * cfg.rates.acquisition_hz)
         last_flush = time.monotonic()
         drain_until = None
         while True:
@@ -305,12 +323,17 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                 reader.publish_feedback(int(rows[-1, acq.sample_col]),
                                         float(rows[-1, acq.feedback_col]))
             now = time.monotonic()
-            if now - last_flush >= cfg.acquisition.flush_period_s:
+            # every flush_period_s, and as soon as that many samples wait (a process starved
+            # on a loaded machine reads them in one go): at most that much lost to a crash
+            if now - last_flush >= cfg.acquisition.flush_period_s or acq.pending >= flush_rows:
                 acq.write_pending()
                 last_flush = now
             if acq.stop is not None:
                 end_sample = int(acq.stop[1])
-                drain_until = drain_until or now + 5.0
+                # a complete run's every sample; an abort's, while they come quickly (a
+                # simulated plant behind the loop is then stopped: rig.daq.stop_at_once)
+                drain_until = drain_until or now + (
+                    5.0 if acq.stop[2] == "complete" else ABORT_DRAIN_S)
                 if acq.next_sample >= end_sample or now > drain_until:
                     break
         assert acq.stop is not None
@@ -318,6 +341,10 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
         if acq.next_sample < int(acq.stop[1]):
             final_status = (f"aborted: acquisition got {acq.next_sample} of {acq.stop[1]} "
                             f"samples" if final_status == "complete" else final_status)
+            meta = {**meta, "acquisition_shortfall": {
+                "samples": acq.next_sample, "of": int(acq.stop[1]),
+                "why": "the samples of the last ticks had not come within "
+                       f"{ABORT_DRAIN_S} s of the abort (a simulated rig behind the loop)"}}
         acq.finish(final_status, meta, tattrs)
         status.put(("done", acq.next_sample))
     except _ControllerDied as exc:
@@ -349,14 +376,7 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
             reader.close()
             if watch is not None and orphaned:
                 reader.release_orphaned()
-    if code:
-        # the file is closed and the reason sent: exit now, so the run's process sees the death
-        # at once (an interpreter's teardown with numba and h5py loaded takes seconds under
-        # load); after a failed HDF5 write this also skips h5py's teardown of its handles
-        with contextlib.suppress(Exception):
-            status.close()
-            status.join_thread()
-        os._exit(code)
+    return code
 
 
 def _disk_full_message(acq: Acquisition | None, path: str) -> str:

@@ -374,6 +374,10 @@ def _plain(text: str) -> None:
     console.print(text, markup=False, highlight=False, soft_wrap=True)
 
 
+def _plain_err(text: str) -> None:
+    err.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
 @app.command("run")
 def run_profile(
     profile: Annotated[Path, typer.Argument(help="force profile (YAML or CSV)")],
@@ -432,7 +436,7 @@ def run_profile(
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
-                         on_line=_plain, force=force,
+                         on_line=_plain, force=force, on_trace=_plain_err,
                          learned=record[0] if record else None)
     except svc.RunStopped as exc:
         err.print(f"ABORTED: {exc}", markup=False, highlight=False, soft_wrap=True)

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.errors import InputError
+from rig.errors import InputError, not_a_file
 from rig.params import load_yaml_file, read_text_file
 
 DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
@@ -192,7 +192,7 @@ def _read_csv(path: Path, source: str) -> list[list[Any]]:
     """Rows (time s, force N) of a two-column CSV: with a header naming ``time_s`` and
     ``force_N`` (any order, case and spaces ignored) or without one (time first)."""
     if not path.is_file():
-        raise _fail(source, "csv", f"file {path} not found")
+        raise _fail(source, "csv", f"{path}: {not_a_file(path)}")
     text = read_text_file(path, MAX_FILE_BYTES)
     rows: list[list[Any]] = []
     order = (0, 1)  # columns of time and force

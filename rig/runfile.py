@@ -31,7 +31,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from rig.errors import InputError
+from rig.errors import InputError, not_a_file
 from rig.version import __version__
 
 FORMAT = "rig-run"
@@ -400,7 +400,7 @@ def read(path: str | Path) -> Run:
     """Read a whole run file (any status), refusing files that are not run files."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: file not found")
+        raise InputError(f"{p}: {not_a_file(p)}")
     try:
         f = h5py.File(p, "r")
     except OSError as exc:

@@ -211,8 +211,23 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
     share a file: ``<data_folder>/<time>-<profile>.h5``, then ``...-2.h5``, ``-3`` ... when
     taken. ``out`` is the user's file: refused (one-line ValueError) when it exists unless
     ``force``, or when its name is too long."""
+    try:
+        return _claim(cfg, profile, out, force)
+    except InputError:
+        raise
+    except OSError as exc:  # a read-only or unwritable folder, a file where a folder should be
+        where = "--out" if out is not None else "data_folder"
+        target = Path(out) if out is not None else Path(cfg.data_folder)
+        raise InputError(f"{where}: cannot write {target}: "
+                         f"{exc.strerror or exc}") from None
+
+
+def _claim(cfg: RigConfig, profile: profiles.Profile, out: Path | None,
+           force: bool) -> Path:
     if out is not None:
         path = Path(out)
+        if path.is_dir():
+            raise InputError(f"--out: {path} is a folder, expected a file (.h5)")
         if len(path.name) > MAX_NAME:
             raise InputError(f"--out: file name of {len(path.name)} characters is too long "
                              f"(at most {MAX_NAME})")
@@ -221,6 +236,8 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
         path.parent.mkdir(parents=True, exist_ok=True)
         if not force:
             _create_exclusive(path)
+        else:  # (kept as it is until the run begins it; refused here when unwritable)
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o644))
         return path
     first = default_path(cfg, profile)
     folder = first.parent
@@ -245,11 +262,13 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
         on_cycle: Callable[[CycleContext], None] | None = None,
-        force: bool = False, learned: dict[str, Any] | None = None) -> RunReport:
+        force: bool = False, learned: dict[str, Any] | None = None,
+        on_trace: Callable[[str], None] | None = None) -> RunReport:
     """Run the profile ``trials`` times on the configured rig; write one run file.
 
     SIGINT, SIGTERM and SIGHUP stop it like Ctrl-C; any exception in the loop is an abort
-    (its traceback goes to ``on_line`` and the file's ``abort_traceback`` metadata). A stop
+    (its traceback goes to ``on_trace`` -- the CLI's stderr; default ``on_line`` -- and the
+    file's ``abort_traceback`` metadata). A stop
     before the acquisition has started raises ``RunStopped`` (no run file is left).
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
     feedforward instead of the advance or the motor compensation."""
@@ -283,7 +302,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         path = claim_path(cfg, profile, out, force=force)
         try:
             return _run(profile, cfg, trials, path, lockstep, ctl, say, on_cycle, full_records,
-                        cals, feedforward, compensation, stop_state, learned)
+                        cals, feedforward, compensation, stop_state, learned,
+                        on_trace or say)
         except BaseException as exc:
             with contextlib.suppress(OSError):  # refused or stopped before the file was begun
                 if path.is_file() and path.stat().st_size == 0:
@@ -305,7 +325,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
          on_cycle: Callable[[CycleContext], None] | None, full_records: list[dict[str, Any]],
          cals: Any, feedforward: Callable[[profiles.Profile, float], float],
          compensation: dict[str, Any], stop_state: dict[str, Any],
-         learned: dict[str, Any] | None = None) -> RunReport:
+         learned: dict[str, Any] | None = None,
+         trace: Callable[[str], None] | None = None) -> RunReport:
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
     spc = cfg.rates.samples_per_cycle
@@ -450,7 +471,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         reason = f"{type(exc).__name__}: {exc}"
         abort_tb = traceback.format_exc()
         for ln in abort_tb.rstrip().splitlines():
-            say(ln)
+            (trace or say)(ln)
     finally:
         stop_state["in_loop"] = True
         _safe(lambda: daq.write_volts(0.0))
@@ -471,6 +492,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         fin = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
                               (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
+        if reason is not None:  # (a simulated plant behind the loop: not its whole backlog)
+            _safe(daq.stop_at_once)
         daq.close()
         if drive is not None:
             _safe(drive.close)
