@@ -183,6 +183,12 @@ class Acquisition:
                 tr.writer.append(section, data, units, docs)
             journal.fault_point("HDF5 flush")
             self.writer.flush()
+            # the groups of trials before the one being written are closed (each open HDF5
+            # object pins its header in the metadata cache: memory growing with the trials)
+            current = max((i for i, tr in enumerate(self.trials) if tr.writer is not None),
+                          default=0)
+            for tr in self.trials[:current]:
+                tr.writer = None
         except Exception as exc:
             self.h5_failed = exc
             raise

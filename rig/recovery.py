@@ -142,14 +142,19 @@ def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, 
         final = f"aborted: {errors[0]}"
     if not path.is_file():
         return Finished(None)
-    if journal.journal_path(path).is_file():
-        return _finish_from_journal(path, rows, trials, final, meta, tattrs, errors)
-    try:  # (the acquisition died before it began the journal: the file holds no samples)
+    jpath = journal.journal_path(path)
+    if jpath.is_file():
+        sc = journal.scan(jpath)
+        if sc.records and sc.records[0][0].get("k") == "begin":
+            return _finish_from_journal(path, rows, trials, final, meta, tattrs, errors)
+        jpath.unlink()  # (it failed before its first record: nothing in it)
+    try:  # (the acquisition failed before it began the journal: the file holds no samples)
         _finish_in_place(path, rows, trials, final, meta, tattrs, errors)
     except Exception as exc:
         if not journal.is_disk_full(exc):
             raise
-        return Finished(None, f"aborted: disk full ({path.parent}) while closing the run file")
+        return Finished(None, f"{final}; the run file {path} may be unreadable: it holds no "
+                              f"samples (disk full as it began)")
     return Finished(None)
 
 

@@ -120,11 +120,14 @@ def _cfg(tmp: Path) -> config.RigConfig:
 
 
 def _drive_safe(log_path: Path) -> None:
+    """The simulated motor's last demand 0 V, and the drive disabled -- or never enabled
+    (a run that failed before it enabled the drive: no EN command on the serial line)."""
     log = read_drive_log(str(log_path))
     volts = [e for e in log if "volts" in e]
     states = [e for e in log if "enabled" in e and "volts" not in e]
     assert volts and volts[-1]["volts"] == 0.0, log[-5:]
-    assert states and states[-1]["enabled"] is False, log[-5:]
+    enabled = any(e.get("command") == "EN" for e in log)
+    assert not enabled or states[-1]["enabled"] is False, log[-5:]
 
 
 @pytest.mark.slow
@@ -165,7 +168,7 @@ def test_enospc_at_20_random_writes_of_a_3_trial_run(tmp_path: Path, monkeypatch
         assert s.size == 0 or (s[0] == 0 and np.all(np.diff(s) == 1)), (who, n)
         m = FULL.search(rep.status)
         if who == "run":  # the run had ended: every sample kept
-            assert s.size == 3 * run.trials[0].channels["sample"].size > 3000
+            assert s.size >= 3 * run.trials[0].channels["sample"].size > 3000
             assert [t.attrs["status"] for t in run.trials] == ["complete"] * 3
             continue
         assert m, rep.status
@@ -173,9 +176,10 @@ def test_enospc_at_20_random_writes_of_a_3_trial_run(tmp_path: Path, monkeypatch
         assert s.size == kept, (who, n, s.size, kept)  # every flushed sample ...
         worst = max(worst, (at - kept) / rate)
         assert at - kept <= lost_max, (who, n, at, kept)  # ... and at most a flush's worth lost
-        for tr in run.trials:  # the loop's records: continuous too
+        for tr in run.trials:  # the loop's records: continuous too (but for missed ticks)
             tick = tr.commands.get("tick", np.zeros(0))
-            gaps = np.flatnonzero(np.diff(tick) != 1)
+            missed = tr.commands.get("missed", np.zeros(0))
+            gaps = np.flatnonzero(np.diff(tick) != 1 + missed[1:])
             assert not gaps.size, (who, n, tick[gaps[:3]], tick[gaps[:3] + 1], rep.status)
     print(f"ENOSPC at {len(moments)} moments: at most {worst:.3f} s of samples not flushed")
 
