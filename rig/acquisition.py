@@ -4,16 +4,19 @@ A separate OS process (multiprocessing, spawn) that owns the run file. It
 reads the load cell, the strain bridge and the encoders on one sample clock
 in blocks (``acquisition.read_period_s``), checks the sample counter for
 continuity, converts raw values to SI with the calibrations in use, and
-appends raw and calibrated channels to the current trial, flushing at least
-every ``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
+appends raw and calibrated channels to the current trial -- to the run file's journal
+first (rig.journal), then to the HDF5 file -- flushing at least every
+``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
 arrive over a queue and go to ``commands/``. A card overflow or a gap stops
 acquisition with a clear message: the file is closed ``aborted: ...`` and the
-process exits with code 1 (at once, os._exit, once the file is closed and the reason
-sent). SIGINT, SIGHUP and SIGTERM are ignored here: the run's process decides. This
-process is also the supervisor of the run's process (rig.supervisor): if that dies, it
-zeroes the demand, disables the drive, closes the file ``aborted: the controller
-process ... died`` and removes the shared blocks the dead process owned. Before each
-flush it checks the free space (``DiskFull``: ``aborted: disk full ...``).
+process exits with code 1. SIGINT, SIGHUP and SIGTERM are ignored here: the run's
+process decides. This process is also the supervisor of the run's process
+(rig.supervisor): if that dies, it zeroes the demand, disables the drive, closes the
+file ``aborted: the controller process ... died`` and removes the shared blocks the
+dead process owned. Before each flush it checks the free space (``DiskFull``:
+``aborted: disk full ...``); an ENOSPC at any write ends the same way, and after a
+failed HDF5 write nothing more goes to that file (the run's process rebuilds it from
+the journal). The process always ends with ``os._exit`` once its answer is sent.
 
 Messages from the run (queue ``ctrl``):
     ("go",)                                      start the sample clock
@@ -205,7 +208,8 @@ class Acquisition:
         rows = sum(r.shape[0] for tr in self.trials for r in tr.rows)
         cmds = sum(next(iter(c.values())).size for tr in self.trials for c in tr.commands
                    if c)
-        need = rows * bytes_per_sample(self.cfg) + cmds * 8 * len(COMMAND_UNITS)
+        # (twice: the journal and the HDF5 file)
+        need = 2 * (rows * bytes_per_sample(self.cfg) + cmds * 8 * len(COMMAND_UNITS))
         free = shutil.disk_usage(self.writer.path.parent).free
         if free < need + SPACE_MARGIN:
             raise DiskFull(f"disk full ({free // 1024} KB free in {self.writer.path.parent} "
@@ -360,7 +364,10 @@ def _acquire(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any
             _drain(acq, reader, exc.watch)
         if exc.watch.error:
             why += f" (making the rig safe failed: {exc.watch.error})"
-        _abort(acq, writer, f"aborted: {why}")
+        if _abort(acq, writer, f"aborted: {why}"):
+            # nobody else will finish the file, and it is whole: its journal is not needed
+            with contextlib.suppress(OSError):
+                journal.journal_path(path).unlink()
     except Exception as exc:  # a full disk, a card fault, anything: the reason, exit 1
         code = 1
         full = isinstance(exc, DiskFull) or journal.is_disk_full(exc)
@@ -394,10 +401,12 @@ def _disk_full_message(acq: Acquisition | None, path: str) -> str:
 
 
 def _abort(acq: Acquisition | None, writer: runfile.RunWriter | None, status: str,
-           write: bool = True) -> None:
+           write: bool = True) -> bool:
     """Write what is pending (unless ``write`` is False: the disk is full) and close the
     journal and the file ``status``. Nothing more goes to an HDF5 file whose write failed:
-    HDF5 after a failed write may fail again, or crash, as its handles are closed."""
+    HDF5 after a failed write may fail again, or crash, as its handles are closed. True
+    when everything was written and the file closed."""
+    closed = False
     try:
         if acq is not None and write:
             acq.poll()
@@ -414,3 +423,5 @@ def _abort(acq: Acquisition | None, writer: runfile.RunWriter | None, status: st
             with contextlib.suppress(Exception):
                 journal.fault_point("HDF5 close")
                 writer.close(status)
+                closed = write
+    return closed

@@ -137,8 +137,9 @@ def test_enospc_at_20_random_writes_of_a_3_trial_run(tmp_path: Path, monkeypatch
     cfg = _cfg(tmp_path)
     rate = cfg.rates.acquisition_hz
     # a flush every flush_period_s or flush_period_s of samples, whichever first; plus one
-    # read (0.02 s; longer when the process is starved on a loaded machine)
-    lost_max = (cfg.acquisition.flush_period_s + 0.1) * rate
+    # read (0.02 s; up to 0.47 s seen when the 2 test cores were shared by 4 agents' tests:
+    # the acquisition process starved, the samples waiting in the card buffer)
+    lost_max = (cfg.acquisition.flush_period_s + 0.5) * rate
     prof = tmp_path / "p.yaml"
     prof.write_text(SHORT)
     rng = random.Random(37)
@@ -147,6 +148,7 @@ def test_enospc_at_20_random_writes_of_a_3_trial_run(tmp_path: Path, monkeypatch
     moments = [("acquisition", rng.randint(1, 75)) for _ in range(17)]
     moments += [("run", 1), ("run", 2), ("acquisition", 2)]
     worst = 0.0
+    lost: list[float] = []
     for who, n in moments:
         out = tmp_path / f"{who}-{n}.h5"
         log = tmp_path / f"{who}-{n}.log"
@@ -175,13 +177,15 @@ def test_enospc_at_20_random_writes_of_a_3_trial_run(tmp_path: Path, monkeypatch
         at, kept = int(m[1]), int(m[2])
         assert s.size == kept, (who, n, s.size, kept)  # every flushed sample ...
         worst = max(worst, (at - kept) / rate)
+        lost.append((at - kept) / rate)
         assert at - kept <= lost_max, (who, n, at, kept)  # ... and at most a flush's worth lost
         for tr in run.trials:  # the loop's records: continuous too (but for missed ticks)
             tick = tr.commands.get("tick", np.zeros(0))
             missed = tr.commands.get("missed", np.zeros(0))
             gaps = np.flatnonzero(np.diff(tick) != 1 + missed[1:])
             assert not gaps.size, (who, n, tick[gaps[:3]], tick[gaps[:3] + 1], rep.status)
-    print(f"ENOSPC at {len(moments)} moments: at most {worst:.3f} s of samples not flushed")
+    print(f"ENOSPC at {len(moments)} moments: at most {worst:.3f} s of samples not flushed "
+          f"(median {np.median(lost):.3f} s)")
 
 
 # ---- SIGKILL of every process of a run; a real tmpfs filled at once (subprocesses) ----

@@ -584,5 +584,6 @@ def _expect(status_q: Any, proc: Any, what: str, timeout: float) -> None:
         if msg[0] == what:
             return
         if msg[0] == "error":
-            raise _Abort(f"acquisition: {msg[1].splitlines()[0]}")
+            first = msg[1].splitlines()[0]
+            raise _Abort(first if first.startswith("disk full") else f"acquisition: {first}")
     raise _Abort(f"the acquisition process did not report {what!r} within {timeout} s")
