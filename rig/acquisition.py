@@ -51,7 +51,8 @@ from rig.daq import DaqFault
 from rig.errors import InputError
 from rig.supervisor import ControllerWatch, make_safe
 
-ABORT_DRAIN_S = 0.8  # s: the wait for the samples of an aborted run's last ticks
+ABORT_DRAIN_S = 0.3  # s: the wait for the samples of an aborted run's last ticks (a card
+# delivers them within a read period; a simulated plant behind the loop is stopped)
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
 
 

@@ -423,7 +423,9 @@ def read(path: str | Path) -> Run:
     try:
         f = h5py.File(p, "r")
     except OSError as exc:
-        raise InputError(f"{p}: not a readable HDF5 file ({exc})") from None
+        hint = (f"; its run left a journal: `rig recover {p}` rebuilds it"
+                if p.with_name(p.name + ".journal").is_file() else "")
+        raise InputError(f"{p}: not a readable HDF5 file ({exc}){hint}") from None
     with f:
         if f.attrs.get("format") != FORMAT:
             raise InputError(f"{p}: not a rig run file (format attribute is "

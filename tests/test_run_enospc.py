@@ -94,6 +94,9 @@ def test_a_record_cut_short_is_dropped_and_every_whole_one_kept(tmp_path: Path,
 def test_rig_recover_says_one_line_and_refuses_bad_input(tmp_path: Path) -> None:
     runner = CliRunner()
     run = _small_journal(tmp_path)
+    run.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 100)  # a run file left unreadable
+    info = runner.invoke(app, ["info", str(run)])
+    assert info.exit_code == 2 and f"`rig recover {run}` rebuilds it" in info.output
     res = runner.invoke(app, ["recover", str(run)])
     assert res.exit_code == 0, res.output
     assert res.output.strip() == (f"recovered {run}: 1 trials, 30 samples, status "
@@ -294,6 +297,7 @@ def test_a_tmpfs_filled_at_once_mid_run(tmp_path: Path, tiny_fs: Path) -> None:
     assert err_text.strip().splitlines() == [err_text.strip().splitlines()[-1]], err_text
     assert err_text.strip().startswith("ABORTED: disk full"), err_text
     assert "rig recover" in err_text and "Traceback" not in out_text + err_text
+    print(err_text.strip())
     _drive_safe(tmp_path / "drive.log")
     filler.unlink()  # space freed: the run file is rebuilt from its journal
     res = subprocess.run([sys.executable, "-m", "rig", "recover", str(out)],
