@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import json
 import os
 import struct
@@ -123,12 +124,18 @@ class JournalWriter:
     def __init__(self, path: Path, fd: int) -> None:
         self.path, self.fd = path, fd
         self.broken: OSError | None = None   # set once a write failed: nothing more written
+        try:
+            _lock(fd, path)  # (the kernel drops the lock with a dead writer)
+        except BaseException:
+            os.close(fd)
+            raise
 
     @classmethod
     def create(cls, run_path: str | Path) -> JournalWriter:
         path = journal_path(run_path)
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         self = cls(path, fd)
+        os.ftruncate(fd, 0)
         self._write(MAGIC, "journal head")
         return self
 
@@ -140,12 +147,13 @@ class JournalWriter:
         path = journal_path(run_path)
         good = scan(path).good_bytes
         fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+        self = cls(path, fd)  # (closes fd if it cannot lock it)
         try:
-            os.truncate(path, good)
-        except OSError:
-            os.close(fd)
+            os.ftruncate(fd, good)
+        except BaseException:
+            self.close()
             raise
-        return cls(path, fd)
+        return self
 
     def _write(self, data: bytes, what: str) -> None:
         if self.broken is not None:
@@ -192,6 +200,15 @@ class JournalWriter:
     def close(self) -> None:
         with contextlib.suppress(OSError):
             os.close(self.fd)
+
+
+def _lock(fd: int, path: Path) -> None:
+    """One writer (or recovery) at a time: a journal locked by a live run is refused."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise InputError(f"{path}: a run is still writing it (recover once it has "
+                         f"ended)") from None
 
 
 @dataclass
@@ -268,6 +285,17 @@ def recover(run_path: str | Path, *, out: str | Path | None = None,
         raise InputError(f"--out: {target} is a folder, expected a file")
     if out is not None and target.exists() and not force:
         raise InputError(f"--out: {target} exists (use --force to replace it)")
+    lock = os.open(jpath, os.O_RDONLY)
+    try:
+        _lock(lock, jpath)
+        return _recover_locked(run_path, jpath, target, keep_journal)
+    finally:
+        with contextlib.suppress(OSError):
+            os.close(lock)
+
+
+def _recover_locked(run_path: Path, jpath: Path, target: Path,
+                    keep_journal: bool) -> Recovered:
     sc = scan(jpath)
     if not sc.records or sc.records[0][0].get("k") != "begin":
         raise InputError(f"{jpath}: holds no whole first record (the run wrote nothing "

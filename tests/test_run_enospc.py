@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 
 from rig import config, journal, runfile
 from rig.cli import app
+from rig.errors import InputError
 from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"
@@ -64,6 +65,19 @@ def test_the_journal_rebuilds_the_run_file(tmp_path: Path) -> None:
     assert tr.units["time"] == "s" and tr.channels["pair"].shape == (30, 2)
     assert tr.attrs["t0"] == 0.1 and tr.attrs["status"] == journal.DIED
     assert not journal.journal_path(run).exists()
+
+
+def test_a_journal_being_written_is_not_recovered(tmp_path: Path) -> None:
+    run = _small_journal(tmp_path)
+    live = journal.JournalWriter.append_to(run)  # a run still writing it (holds its lock)
+    try:
+        with pytest.raises(InputError, match="a run is still writing it"):
+            journal.recover(run)
+        with pytest.raises(InputError, match="a run is still writing it"):
+            journal.JournalWriter.append_to(run)
+    finally:
+        live.close()
+    assert journal.recover(run).samples == 30  # its writer gone: recovered
 
 
 @pytest.mark.parametrize("cut", [1, 7, 19, 40, 101])
