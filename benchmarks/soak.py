@@ -9,7 +9,8 @@ process, the acquisition process, the simulated plant) shortly after the loop st
 just before it ended, with the change in %; the samples acquired against the sample
 counter (lost samples = counter span - samples in the file, gaps between trials counted);
 the loop's lateness per minute of the run (median, p99, max, late cycles). Goals: 0 lost
-samples, RSS flat within 10 %, lateness not growing.
+samples, RSS flat (issue 37: no process growing by more than 5 MB), lateness not
+growing. The acquisition's writing path alone, faster: benchmarks/acquisition_memory.py.
 """
 
 from __future__ import annotations
@@ -135,7 +136,8 @@ def main() -> int:
     for r, p in roles.items():
         a, b = first.get(r), last.get(r)
         if a and b:
-            print(f"  {r:12s} (pid {p}): {a:7.1f} -> {b:7.1f}  ({(b - a) / a * 100:+.1f} %)")
+            print(f"  {r:12s} (pid {p}): {a:7.1f} -> {b:7.1f}  ({b - a:+.1f} MB, "
+                  f"{(b - a) / a * 100:+.1f} %)")
 
     with h5py.File(run_file, "r") as f:
         status = str(f.attrs["status"])

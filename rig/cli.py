@@ -461,6 +461,10 @@ def _plain(text: str) -> None:
     console.print(text, markup=False, highlight=False, soft_wrap=True)
 
 
+def _plain_err(text: str) -> None:
+    err.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
 @app.command("run")
 def run_profile(
     profile: Annotated[Path, typer.Argument(help="force profile (YAML or CSV)")],
@@ -519,7 +523,7 @@ def run_profile(
     _plain(which)
     try:
         report = svc.run(profile, cfg, trials=trials, out=out, lockstep=lockstep,
-                         on_line=_plain, force=force,
+                         on_line=_plain, force=force, on_trace=_plain_err,
                          learned=record[0] if record else None)
     except svc.RunStopped as exc:
         err.print(f"ABORTED: {exc}", markup=False, highlight=False, soft_wrap=True)
@@ -547,6 +551,26 @@ def run_profile(
         err.print(f"ABORTED: {reason}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1)
 # ---- end of rig run ----
+
+
+@app.command()
+def recover(
+    run: Annotated[Path, typer.Argument(help="run file (.h5) with its journal RUN.h5.journal")],
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="write the rebuilt run file here instead of over RUN.h5")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --out")] = False,
+) -> None:
+    """Rebuild a run file from the journal its run left beside it (a full disk, a killed or
+    crashed run): every block the acquisition flushed, the loop's records, the status."""
+    from rig import journal
+
+    try:
+        rec = journal.recover(run, out=out, force=force)
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
+    torn = "; a last record cut short was dropped" if rec.torn else ""
+    _plain(f"recovered {rec.path}: {rec.trials} trials, {rec.samples} samples, status "
+           f"{rec.status}{torn}")
 
 
 def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | None:

@@ -467,6 +467,17 @@ class RigConfig(_Strict):
     sim: Sim = Sim()
     calibration: CalibrationSettings = CalibrationSettings()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _sim_drive_port(cls, data: Any) -> Any:
+        """``backend: sim`` implies the simulated drive (``drive.port: sim``) unless the file
+        names a port (a serial line to a real drive, or a pty in a test)."""
+        if isinstance(data, dict) and data.get("backend") == "sim":
+            drive = data.get("drive")
+            if drive is None or (isinstance(drive, dict) and "port" not in drive):
+                data = {**data, "drive": {**(drive or {}), "port": "sim"}}
+        return data
+
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
 

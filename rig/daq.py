@@ -84,6 +84,11 @@ class Daq(ABC):
     def close(self) -> None:
         """Write 0 V and release everything (idempotent)."""
 
+    def stop_at_once(self) -> None:  # noqa: B027 - optional: only a simulator has a backlog
+        """After an abort: ``close`` stops at once what makes the samples (the simulated
+        plant, which may run behind the loop on a loaded machine) instead of letting it
+        finish the control periods the loop ran. A real card's samples are never behind."""
+
 
 class Reader(ABC):
     """Acquisition side: the 2 kHz sample clock and its buffered channels."""

@@ -23,6 +23,11 @@ class InputError(RigError, ValueError):
     """The user's bad input: one line naming the file and field; exit 2, nothing written."""
 
 
+def not_a_file(path: Path) -> str:
+    """Why ``path`` cannot be read as a file: a folder, or missing."""
+    return "is a folder, expected a file" if Path(path).is_dir() else "file not found"
+
+
 def refuse_existing(path: Path | None, force: bool, field: str = "out") -> None:
     """The user's existing file is never replaced without ``force`` (--force)."""
     if path is not None and Path(path).exists() and not force:

@@ -94,11 +94,11 @@ def _load_yaml_text(text: str, source: str) -> Any:
 def read_text_file(path: str | Path, max_bytes: int | None = None) -> str:
     """A UTF-8 text file's content; a one-line ``InputError`` naming it when it is missing,
     larger than ``max_bytes``, unreadable or not UTF-8."""
-    from rig.errors import InputError
+    from rig.errors import InputError, not_a_file
 
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: file not found")
+        raise InputError(f"{p}: {not_a_file(p)}")
     try:
         size = p.stat().st_size
         if max_bytes is not None and size > max_bytes:

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.errors import InputError
+from rig.errors import InputError, not_a_file
 from rig.params import load_yaml_file, read_text_file
 
 DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
@@ -257,7 +257,7 @@ def _read_csv(path: Path, source: str) -> list[list[Any]]:
     `;`- or tab-separated files are read too, a `;`-separated one with decimal commas
     (`0,01;3,5`); lines starting with `#` are comments."""
     if not path.is_file():
-        raise _fail(source, "csv", f"file {path} not found")
+        raise _fail(source, "csv", f"{path}: {not_a_file(path)}")
     lines = read_text_file(path, MAX_FILE_BYTES).removeprefix("\ufeff").splitlines()
     sep = _delimiter(lines)
     rows: list[list[Any]] = []

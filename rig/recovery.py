@@ -9,15 +9,18 @@ the run's metadata and an ``aborted: ...`` status naming why.
 
 from __future__ import annotations
 
+import contextlib
 import queue
+import shutil
 import signal
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rig import runfile
+from rig import journal, runfile
 from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS
 from rig.config import RigConfig
 
@@ -76,16 +79,27 @@ class LoopRecords:
         return self.made[k] - part.shape[0], part
 
 
+@dataclass
+class Finished:
+    """How the acquisition ended: its sample count when it closed the file itself; ``left``,
+    the run's final status when the run file could not be finished (a full disk: the journal
+    is left for ``rig recover``); ``recovered``, samples of a file rebuilt from the journal."""
+
+    samples: int | None
+    left: str | None = None
+    recovered: int | None = None
+
+
 def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, status: str,
             stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
-            abort_tb: str | None = None, done_trials: int = 0) -> int | None:
+            abort_tb: str | None = None, done_trials: int = 0) -> Finished:
     """Stop the acquisition process and see the file closed; recover it if the process died."""
     meta: dict[str, Any] = {"loop_lateness": stats}
     if abort_tb is not None:
         meta["abort_traceback"] = abort_tb
     tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
     if proc is None:
-        return None
+        return Finished(None)
     msgs = []
     if proc.is_alive():
         rows.send(ctrl)
@@ -120,14 +134,34 @@ def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, 
     ctrl.close()
     status_q.close()
     if done and proc.exitcode in (0, -signal.SIGKILL):  # (killed while exiting, file closed)
-        return int(done[0][1])
+        return Finished(int(done[0][1]))
     # the acquisition process died or failed: finish the file here
     why = errors[0] if errors else f"the acquisition process died (exit code {proc.exitcode})"
     final = status if status.startswith("aborted") else f"aborted: {why}"
     if errors and "acquisition process died" in status:
         final = f"aborted: {errors[0]}"
     if not path.is_file():
-        return None
+        return Finished(None)
+    jpath = journal.journal_path(path)
+    if jpath.is_file():
+        sc = journal.scan(jpath)
+        if sc.records and sc.records[0][0].get("k") == "begin":
+            return _finish_from_journal(path, rows, trials, final, meta, tattrs, errors)
+        jpath.unlink()  # (it failed before its first record: nothing in it)
+    try:  # (the acquisition failed before it began the journal: the file holds no samples)
+        _finish_in_place(path, rows, trials, final, meta, tattrs, errors)
+    except Exception as exc:
+        if not journal.is_disk_full(exc):
+            raise
+        return Finished(None, f"{final}; the run file {path} may be unreadable: it holds no "
+                              f"samples (disk full as it began)")
+    return Finished(None)
+
+
+def _finish_in_place(path: Path, rows: LoopRecords, trials: int, final: str,
+                     meta: dict[str, Any], tattrs: dict[int, dict[str, Any]],
+                     errors: list[str]) -> None:
+    journal.fault_point("HDF5 reopen")
     w = runfile.RunWriter.reopen(path)
     for k in range(trials):
         first, part = rows.trial_rows(k)
@@ -149,4 +183,89 @@ def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, 
     if errors and final != f"aborted: {errors[0]}":
         w.add_metadata("acquisition_error", errors[0])
     w.close(final)
-    return None
+
+
+def _finish_from_journal(path: Path, rows: LoopRecords, trials: int, final: str,
+                         meta: dict[str, Any], tattrs: dict[int, dict[str, Any]],
+                         errors: list[str]) -> Finished:
+    """The acquisition died or failed and left its journal: add the loop's records it had not
+    written, the metadata and the final status to the journal, then rebuild the run file
+    from it (rig.journal.recover) when the disk has room; else leave the journal (and the
+    HDF5 file as the acquisition left it) for ``rig recover``. The HDF5 file is never written
+    here: after a failed write (a full disk) HDF5 may fail again or crash."""
+    jpath = journal.journal_path(path)
+    try:
+        have = _journaled_commands(jpath)
+        jw = journal.JournalWriter.append_to(path)
+        try:
+            for k in range(trials):
+                first, part = rows.trial_rows(k)
+                start = max(0, have.get(k, 0) - first)
+                if part.shape[0] > start:
+                    jw.append(k, "commands", {c: part[start:, j] for j, c in enumerate(COLUMNS)},
+                              COMMAND_UNITS, COMMAND_DOCS)
+            for name, value in meta.items():
+                jw.metadata(name, value)
+            for k, attrs in tattrs.items():
+                jw.trial(k, attrs)
+            if errors and final != f"aborted: {errors[0]}":
+                jw.metadata("acquisition_error", errors[0])
+            jw.close_record(final)
+        finally:
+            jw.close()
+    except OSError:  # a full disk: the journal keeps what it had
+        pass
+    size = jpath.stat().st_size if jpath.is_file() else 0
+    free = shutil.disk_usage(path.parent).free
+    if free < REBUILD_FACTOR * size + REBUILD_MARGIN:
+        return Finished(None, _left(final, path))
+    try:
+        rec = journal.recover(path)
+    except Exception as exc:  # noqa: BLE001 - the journal stays; say how to finish
+        if not journal.is_disk_full(exc):
+            raise
+        return Finished(None, _left(final, path))
+    return Finished(None, recovered=rec.samples)
+
+
+FAILED_HANDLES: list[Any] = []  # HDF5 handles whose write failed: kept, never closed
+
+
+def after_failed_write(path: Path, status: str) -> str:
+    """A write to a closed run file failed (a full disk): the file may be damaged, so it is
+    rebuilt from its journal with ``status`` when there is room; the final status (with how
+    to recover when the journal had to be left)."""
+    with contextlib.suppress(OSError):
+        jw = journal.JournalWriter.append_to(path)
+        try:
+            jw.close_record(status)
+        finally:
+            jw.close()
+    jpath = journal.journal_path(path)
+    size = jpath.stat().st_size if jpath.is_file() else 0
+    if size and shutil.disk_usage(path.parent).free >= REBUILD_FACTOR * size + REBUILD_MARGIN:
+        try:
+            journal.recover(path)
+            return status
+        except Exception as exc:  # noqa: BLE001 - the journal stays
+            if not journal.is_disk_full(exc):
+                raise
+    return _left(status, path)
+
+
+REBUILD_FACTOR = 1.5     # the rebuilt file's size over the journal's, with room to spare
+REBUILD_MARGIN = 1 << 20  # bytes
+
+
+def _left(final: str, path: Path) -> str:
+    why = final if "disk full" in final else f"{final}; disk full"
+    return f"{why}; free space, then `rig recover {path}` rebuilds the run file from its journal"
+
+
+def _journaled_commands(jpath: Path) -> dict[int, int]:
+    """Rows of the loop's records per trial in the journal's whole records."""
+    have: dict[int, int] = {}
+    for doc, arrays in journal.scan(jpath).records:
+        if doc["k"] == "append" and doc["section"] == "commands" and arrays:
+            have[doc["trial"]] = have.get(doc["trial"], 0) + int(arrays[0].shape[0])
+    return have

@@ -64,3 +64,21 @@ def test_a_bad_model_file_is_refused_naming_the_file_and_field(tmp_path, text, f
     path.write_text(text)
     with pytest.raises(InputError, match=f"bad.yaml: {field}"):
         modelfile.read(path)
+
+
+@pytest.mark.parametrize("text, field", [
+    ("effects: [nosuch]\n", "effects: effect 'nosuch': not in the library"),
+    ("parameters: {nosuch_param: 1}\n", "parameters: parameter 'nosuch_param'"),
+    ("parameters: missing.yaml\n", "parameters: .*missing.yaml: file not found"),
+    ("parameters: sub\n", "parameters: .*sub: is a folder, expected a file"),
+    ("integrator: {name: bogus}\n", "integrator: expected rosenbrock"),
+])
+def test_errors_inside_a_model_file_name_the_file(tmp_path, text, field) -> None:
+    (tmp_path / "sub").mkdir()
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"^{path}: {field}") as exc:
+        ActionModel.from_yaml(path)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(InputError, match=f"^{tmp_path}: is a folder, expected a file"):
+        ActionModel.from_yaml(tmp_path)

@@ -16,11 +16,12 @@ integrator. A failed integration does not raise: the result carries
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import math
 import time as _time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,6 +75,19 @@ class Chunk:
 
     def angle(self, name: str) -> np.ndarray:
         return self.states[:, ANGLE_CHANNELS[name]]
+
+
+@contextlib.contextmanager
+def _naming(path: str | Path | None, key: str) -> Iterator[None]:
+    """A model file's errors name the file and its key (``model.yaml: effects: ...``)."""
+    try:
+        yield
+    except InputError as exc:
+        text = str(exc)
+        if path is None or text.startswith(str(path)):
+            raise
+        text = text if text.startswith(f"{key}:") else f"{key}: {text}"
+        raise InputError(f"{path}: {text}") from None
 
 
 class ActionModel:
@@ -151,23 +165,27 @@ class ActionModel:
         data, base = modelfile.read(path)
         params = Parameters.default()
         pspec = data.get("parameters")
-        if isinstance(pspec, str):
-            params = Parameters.from_file(base / pspec)
-        elif isinstance(pspec, Mapping):
-            params.update(pspec, source=f"{path}: parameters")
-        elif pspec is not None:
-            raise InputError(f"{path}: parameters: expected a file name or a mapping")
+        with _naming(path, "parameters"):
+            if isinstance(pspec, str):
+                params = Parameters.from_file(base / pspec)
+            elif isinstance(pspec, Mapping):
+                params.update(pspec, source=f"{path}: parameters")
+            elif pspec is not None:
+                raise InputError(f"{path}: parameters: expected a file name or a mapping")
         eff = list(data.get("effects") or [])
-        eff.extend(e for e in effects if e not in eff)
-        model = cls(params, eff, None, base_dir=base)
+        extra = [e for e in effects if e not in eff]
+        # (with effects added on the command line an error may be theirs: not named the file's)
+        with _naming(None if extra else path, "effects"):
+            model = cls(params, eff + extra, None, base_dir=base)
         ispec = data.get("integrator")
         num = params.tree["numerics"]
         if integrator is not None or ispec is not None:
             spec = dict(ispec) if isinstance(ispec, Mapping) else {}
             # a block without a name keeps the model's default integrator (its tolerances set)
             name = integrator or str(spec.get("name") or model.integrator.name)
-            model.integrator = by_name(name, rtol=float(spec.get("rtol", num["rtol"])),
-                                       max_step=float(spec.get("max_step", num["max_step"])))
+            with _naming(path if integrator is None else None, "integrator"):
+                model.integrator = by_name(name, rtol=float(spec.get("rtol", num["rtol"])),
+                                           max_step=float(spec.get("max_step", num["max_step"])))
         return model
 
     # -- information -------------------------------------------------------------

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from rig.errors import InputError
+from rig.errors import InputError, not_a_file
 from rig.params import Parameters
 
 if TYPE_CHECKING:
@@ -497,7 +497,7 @@ def _load_class(ref: str) -> type[Effect]:
     if target.endswith(".py"):
         path = Path(target)
         if not path.is_file():
-            raise InputError(f"effect {ref!r}: file {path} not found")
+            raise InputError(f"effect {ref!r}: {path}: {not_a_file(path)}")
         mod_name = f"rig_user_effect_{abs(hash(str(path.resolve())))}"
         spec = importlib.util.spec_from_file_location(mod_name, path)
         if spec is None or spec.loader is None:

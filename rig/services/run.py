@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import math
 import multiprocessing as mp
 import os
@@ -40,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from rig import loadcell, motor_torque, pacing, profiles, recovery, runfile
+from rig import journal, loadcell, motor_torque, pacing, profiles, recovery, runfile
 from rig.acquisition import run_acquisition
 from rig.analysis import events
 from rig.backends import open_daq
@@ -193,13 +194,15 @@ FILE_OVERHEAD = 2 * 1024 * 1024  # bytes: metadata (config, profile, records) an
 def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
                      folder: Path) -> int:
     """Refuse (one-line ValueError) a run whose file would not fit in ``folder``'s free space
-    (the whole run's samples at ``bytes_per_sample``, the file's overhead and the margin the
+    (the whole run's samples at ``bytes_per_sample``, twice: the file and its journal; the
+    file's overhead and the margin the
     acquisition keeps free); the estimate in bytes."""
     from rig.acquisition import SPACE_MARGIN, bytes_per_sample
 
     seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
-    need = int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) + FILE_OVERHEAD \
-        + SPACE_MARGIN
+    # the samples twice: in the run file and in its journal (rig.journal)
+    need = 2 * int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) \
+        + FILE_OVERHEAD + SPACE_MARGIN
     probe = folder
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
@@ -234,8 +237,23 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
     share a file: ``<data_folder>/<time>-<profile>.h5``, then ``...-2.h5``, ``-3`` ... when
     taken. ``out`` is the user's file: refused (one-line ValueError) when it exists unless
     ``force``, or when its name is too long."""
+    try:
+        return _claim(cfg, profile, out, force)
+    except InputError:
+        raise
+    except OSError as exc:  # a read-only or unwritable folder, a file where a folder should be
+        where = "--out" if out is not None else "data_folder"
+        target = Path(out) if out is not None else Path(cfg.data_folder)
+        raise InputError(f"{where}: cannot write {target}: "
+                         f"{exc.strerror or exc}") from None
+
+
+def _claim(cfg: RigConfig, profile: profiles.Profile, out: Path | None,
+           force: bool) -> Path:
     if out is not None:
         path = Path(out)
+        if path.is_dir():
+            raise InputError(f"--out: {path} is a folder, expected a file (.h5)")
         if len(path.name) > MAX_NAME:
             raise InputError(f"--out: file name of {len(path.name)} characters is too long "
                              f"(at most {MAX_NAME})")
@@ -244,6 +262,8 @@ def claim_path(cfg: RigConfig, profile: profiles.Profile, out: Path | None = Non
         path.parent.mkdir(parents=True, exist_ok=True)
         if not force:
             _create_exclusive(path)
+        else:  # (kept as it is until the run begins it; refused here when unwritable)
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o644))
         return path
     first = default_path(cfg, profile)
     folder = first.parent
@@ -268,15 +288,18 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
         on_cycle: Callable[[CycleContext], None] | None = None,
-        force: bool = False, learned: dict[str, Any] | None = None) -> RunReport:
+        force: bool = False, learned: dict[str, Any] | None = None,
+        on_trace: Callable[[str], None] | None = None) -> RunReport:
     """Run the profile ``trials`` times on the configured rig; write one run file.
 
     SIGINT, SIGTERM and SIGHUP stop it like Ctrl-C; any exception in the loop is an abort
-    (its traceback goes to ``on_line`` and the file's ``abort_traceback`` metadata). A stop
+    (its traceback goes to ``on_trace`` -- the CLI's stderr; default ``on_line`` -- and the
+    file's ``abort_traceback`` metadata). A stop
     before the acquisition has started raises ``RunStopped`` (no run file is left).
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
     feedforward instead of the advance or the motor compensation."""
     say = on_line or (lambda s: None)
+    journal.set_process("run")
     if trials < 1:
         raise InputError(f"trials: expected at least 1, got {trials}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
@@ -305,7 +328,8 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
         path = claim_path(cfg, profile, out, force=force)
         try:
             return _run(profile, cfg, trials, path, lockstep, ctl, say, on_cycle, full_records,
-                        cals, feedforward, compensation, stop_state, learned)
+                        cals, feedforward, compensation, stop_state, learned,
+                        on_trace or say)
         except BaseException as exc:
             with contextlib.suppress(OSError):  # refused or stopped before the file was begun
                 if path.is_file() and path.stat().st_size == 0:
@@ -327,7 +351,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
          on_cycle: Callable[[CycleContext], None] | None, full_records: list[dict[str, Any]],
          cals: Any, feedforward: Callable[[profiles.Profile, float], float],
          compensation: dict[str, Any], stop_state: dict[str, Any],
-         learned: dict[str, Any] | None = None) -> RunReport:
+         learned: dict[str, Any] | None = None,
+         trace: Callable[[str], None] | None = None) -> RunReport:
     hz = cfg.rates.control_hz
     dt = 1.0 / hz
     spc = cfg.rates.samples_per_cycle
@@ -482,7 +507,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         reason = f"{type(exc).__name__}: {exc}"
         abort_tb = traceback.format_exc()
         for ln in abort_tb.rstrip().splitlines():
-            say(ln)
+            (trace or say)(ln)
     finally:
         stop_state["in_loop"] = True
         _safe(lambda: daq.write_volts(0.0))
@@ -500,27 +525,59 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     try:
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
-        samples = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
-                          (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
+        fin = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
+                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
     finally:
+        if reason is not None:  # (a simulated plant behind the loop: not its whole backlog)
+            _safe(daq.stop_at_once)
         daq.close()
         if drive is not None:
             _safe(drive.close)
         if sim_drive is not None:
             sim_drive.close()
+    if fin.left is not None:  # a full disk: the journal holds the run for `rig recover`
+        return RunReport(path, fin.left, last_tick + 1, stats, None, {})
+    samples = fin.samples
     read_back = runfile.read(path)
     final = read_back.status
     # no repeatability figure over truncated trials: only a complete run gets one
     rep = repeatability(path) if trials > 1 and final == "complete" else {}
     found = found_events(read_back, say)
     if rep or found:
-        w = runfile.RunWriter.reopen(path)
+        try:
+            _add_findings(path, final, rep, found)
+        except Exception as exc:
+            if not journal.is_disk_full(exc):
+                raise
+            left = recovery.after_failed_write(
+                path, f"aborted: disk full ({path.parent}) while adding the events found")
+            return RunReport(path, left, last_tick + 1, stats, None, {})
+    # the run file is whole: its journal is no longer needed
+    with contextlib.suppress(OSError):
+        journal.journal_path(path).unlink()
+    return RunReport(path, final, last_tick + 1, stats, samples, rep)
+
+
+def _add_findings(path: Path, final: str, rep: dict[str, Any],
+                  found: dict[int, dict[str, float]]) -> None:
+    """The repeatability and the events found, added to the closed run file."""
+    from rig.acquisition import SPACE_MARGIN
+
+    if shutil.disk_usage(path.parent).free < SPACE_MARGIN:
+        raise OSError(errno.ENOSPC, f"No space left on device (under {SPACE_MARGIN // 1024} "
+                      f"KB free in {path.parent})")
+    journal.fault_point("HDF5 reopen")
+    w = runfile.RunWriter.reopen(path)
+    try:
         if rep:
             w.add_metadata("repeatability", rep)
         for k, ev in found.items():
             w.trial(k).write_events(ev, EVENT_DOCS, source=events.SOURCE, methods=events.METHODS)
-        w.close(final)
-    return RunReport(path, final, last_tick + 1, stats, samples, rep)
+        journal.fault_point("HDF5 events")
+    except BaseException:
+        recovery.FAILED_HANDLES.append(w)  # no close, no teardown of a failed HDF5 handle
+        raise
+    w.close(final)
 
 
 def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict[str, float]]:
@@ -563,5 +620,6 @@ def _expect(status_q: Any, proc: Any, what: str, timeout: float) -> None:
         if msg[0] == what:
             return
         if msg[0] == "error":
-            raise _Abort(f"acquisition: {msg[1].splitlines()[0]}")
+            first = msg[1].splitlines()[0]
+            raise _Abort(first if first.startswith("disk full") else f"acquisition: {first}")
     raise _Abort(f"the acquisition process did not report {what!r} within {timeout} s")

@@ -61,6 +61,7 @@ class SimDaq(Daq):
         self.t_start = math.nan
         self._closed = False
         self._armed = False
+        self._stop_now = False
         self.rig: SimRig | None = None
         self.link: PlantLink | None = None
         self.plant: Any = None
@@ -171,8 +172,12 @@ class SimDaq(Daq):
         assert self.link is not None
         return self.link.feedback()
 
+    def stop_at_once(self) -> None:
+        self._stop_now = True
+
     def close(self) -> None:
-        """Zero the output, let the plant finish the periods the loop ran, release all."""
+        """Zero the output, let the plant finish the periods the loop ran (unless
+        ``stop_at_once``: it stops at the period it is in), release all."""
         if self._closed:
             return
         self._closed = True
@@ -180,7 +185,7 @@ class SimDaq(Daq):
         if self.link is not None:
             if self.index >= 0 and self.link.cycles_done <= self.index:
                 self.link.put(self.index, 0.0)
-            self.link.request_stop()
+            self.link.request_stop(now=self._stop_now)
             if self.plant is not None and not self.link.ready:
                 self.plant.kill()  # still building its model (stopped at start): nothing to finish
             if self.plant is not None:

@@ -102,12 +102,17 @@ class PlantLink:
     def t_start(self, value: float) -> None:
         self.h[_T_START] = value
 
-    def request_stop(self) -> None:
-        self.h[_STOP] = 1.0
+    def request_stop(self, now: bool = False) -> None:
+        """Stop once the periods written are simulated, or ``now`` (at the next period)."""
+        self.h[_STOP] = 2.0 if now else max(1.0, float(self.h[_STOP]))
 
     @property
     def stop_requested(self) -> bool:
         return bool(self.h[_STOP])
+
+    @property
+    def stop_now(self) -> bool:
+        return bool(self.h[_STOP] >= 2.0)
 
     def publish(self, sample: int, ratio: float, cycles: int) -> None:
         self.h[_LAST_RATIO] = ratio
@@ -203,6 +208,10 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
         fault_cycle = -1 if drill is None else max(1, round(drill * cfg.rates.control_hz))
         while True:
             log.state(cycle, state)
+            if link.stop_now:  # the run aborted: the periods it ran that are not simulated yet
+                log.demand(cycle, 0.0, state)  # are dropped; the card's output goes to 0 V
+                log.event(cycle, "stopped at once (the run aborted)")
+                break
             volts = link.get(cycle)
             if volts is None:
                 if link.stop_requested:
@@ -235,6 +244,9 @@ def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
         log.close()
         fifo.close()
         link.close()
+    # all is written and released: skip the interpreter's teardown (the action model's numba
+    # code loaded: about a second, more under load) that the run's process would wait for
+    os._exit(0)
 
 
 DRIVE_LOG_ENV = "RIG_SIM_DRIVE_LOG"
