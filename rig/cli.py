@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import math
+import sys
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -1133,10 +1134,30 @@ def main() -> None:
     (docs/performance.md). Nothing depends on it: the commands close and flush their
     files themselves, and ``atexit`` handlers and ``weakref.finalize`` still run.
     """
+    # typer 0.28 parses with its own copy of click (pyproject.toml pins typer < 0.29)
+    from typer._click import exceptions as click_errors
+
+    code: Any = 0
     try:
-        app(prog_name="rig")
+        code = app(prog_name="rig", standalone_mode=False)
+    except click_errors.NoArgsIsHelpError as exc:   # `rig`, `rig calibrate`: the help
+        exc.show()
+        code = exc.exit_code
+    except click_errors.UsageError as exc:  # a mistyped command, option or value: one
+        # line naming it and the command, exit 2 (issue 37; click's was a four-line box)
+        where = exc.ctx.command_path if exc.ctx is not None else "rig"
+        err.print(f"{where}: {exc.format_message()} (see '{where} --help')", markup=False,
+                  highlight=False)
+        code = exc.exit_code
+    except click_errors.ClickException as exc:
+        err.print(f"rig: {exc.format_message()}", markup=False, highlight=False)
+        code = exc.exit_code
+    except typer.Abort:
+        err.print("Aborted.", markup=False, highlight=False)
+        code = 1
     finally:
         gc.freeze()
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":  # pragma: no cover

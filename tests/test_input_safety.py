@@ -336,3 +336,31 @@ def test_an_oversized_rig_config_is_refused_unread(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=f"^{path}: file is \\d+ bytes, more than the "
                                          f"{config.MAX_CONFIG_BYTES} allowed$"):
         config.load(path)
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["run", "--bogus"], "rig run: No such option: --bogus (Possible options: --out)"),
+    (["nosuchcmd"], "rig: No such command 'nosuchcmd'."),
+    (["run", "profiles/forte.yaml", "--trials", "two"],
+     "rig run: Invalid value for '--trials': 'two' is not a valid int."),
+    (["simulate"], "rig simulate: Missing argument 'profile'."),
+])
+def test_a_mistyped_command_line_is_one_line_and_exit_2(argv, line, monkeypatch, capsys) -> None:
+    # issue 37: click's usage errors were a four-line box
+    from rig.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["rig", *argv])
+    with pytest.raises(SystemExit) as info:
+        main()
+    out, errs = capsys.readouterr()
+    assert info.value.code == 2 and out == ""
+    assert errs.splitlines() == [f"{line} (see '{line.split(':')[0]} --help')"]
+
+
+def test_rig_alone_prints_the_help(monkeypatch, capsys) -> None:
+    from rig.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["rig"])
+    with pytest.raises(SystemExit) as info:
+        main()
+    assert info.value.code == 2 and "Usage: rig [OPTIONS] COMMAND" in capsys.readouterr().out
