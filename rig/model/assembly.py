@@ -134,7 +134,9 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     sp[k.S_PIVY0] = t["key_pivot"]["y0"]
     sp[k.S_JACK_T] = t["springs"]["jack_torque"] * t["springs_sign"]["jack"]
     sp[k.S_REP_K] = t["springs"]["repetition"]["k"]
-    sp[k.S_REP_TH0] = t["springs"]["repetition"]["theta0"]
+    # the spring's free angle, moved by the repetition-spring regulation (chosen-parameters)
+    sp[k.S_REP_TH0] = (t["springs"]["repetition"]["theta0"]
+                       + t["repetition_spring"]["regulation"])
     sp[k.S_LIFTOFF] = 1.0 if liftoff else 0.0
     sp[k.S_FLEX] = 1.0 if flexible_shank else 0.0
 
