@@ -57,6 +57,30 @@ def _fresh_twice(code: str, args: list[str], cwd: Path, **env: str) -> dict[str,
 
 
 @pytest.fixture
+def tmpfs(tmp_path: Path):
+    """``mount(options, name)``: a tmpfs mounted with ``options`` (``"size=6m"``,
+    ``"ro,size=64m"``) at ``tmp_path / name``, unmounted after the test; the test skips
+    where it cannot be mounted (not root, no mount)."""
+    mounted: list[Path] = []
+
+    def mount(options: str, name: str = "small") -> Path:
+        mnt = tmp_path / name
+        mnt.mkdir()
+        if os.geteuid() != 0:
+            pytest.skip("mounting a filesystem needs root")
+        res = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)],
+                             capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
+        mounted.append(mnt)
+        return mnt
+
+    yield mount
+    for mnt in mounted:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+@pytest.fixture
 def fresh_twice() -> Callable[..., dict[str, Any]]:
     """Run code in a fresh interpreter twice and read the second's RESULT line."""
     return _fresh_twice

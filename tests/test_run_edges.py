@@ -5,7 +5,6 @@ stderr, and ``backend: sim`` implies the simulated drive."""
 from __future__ import annotations
 
 import os
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -28,24 +27,17 @@ def _files(tmp: Path, **extra) -> tuple[Path, Path]:
 
 
 @pytest.fixture
-def read_only(tmp_path: Path):
+def read_only(tmp_path: Path, tmpfs):
     """A folder nobody may write to: a read-only tmpfs (root ignores permissions), else a
     folder without write permission."""
+    if os.geteuid() == 0:
+        yield tmpfs("ro,size=64m", "ro")
+        return
     ro = tmp_path / "ro"
     ro.mkdir()
-    if os.geteuid() == 0:
-        res = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64m", "tmpfs", str(ro)],
-                             capture_output=True, text=True)
-        if res.returncode != 0:
-            pytest.skip(f"cannot mount a read-only tmpfs: {res.stderr.strip()}")
-        try:
-            yield ro
-        finally:
-            subprocess.run(["umount", "-l", str(ro)], check=False)
-    else:
-        ro.chmod(0o555)
-        yield ro
-        ro.chmod(0o755)
+    ro.chmod(0o555)
+    yield ro
+    ro.chmod(0o755)
 
 
 def test_an_unwritable_output_folder_is_one_line_and_exit_2(tmp_path: Path,

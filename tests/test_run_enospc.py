@@ -277,23 +277,11 @@ def test_sigkill_of_every_process_keeps_every_flushed_sample(tmp_path: Path) -> 
 
 
 @pytest.fixture
-def tiny_fs(tmp_path: Path):
+def tiny_fs(tmpfs) -> Path:
     """A 6 MB tmpfs mounted for the test (root only)."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small filesystem needs root")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=6m", "tmpfs", str(mnt)],
-                         capture_output=True, text=True)
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
+    return tmpfs("size=6m")
 
 
-@pytest.mark.slow
 def test_a_tmpfs_filled_at_once_mid_run(tmp_path: Path, tiny_fs: Path) -> None:
     out = tiny_fs / "run.h5"
     proc = _start(tmp_path, out, trials=3)

@@ -397,20 +397,9 @@ def test_stop_in_the_first_second_ends_within_2_s(tmp_path: Path) -> None:
 
 
 @pytest.fixture
-def small_fs(tmp_path: Path):
+def small_fs(tmpfs) -> Path:
     """A tmpfs of 8 MB mounted for the test (root only)."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("mounting a small filesystem needs root")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)],
-                         capture_output=True, text=True)
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
+    return tmpfs("size=8m")
 
 
 def test_a_run_that_cannot_fit_is_refused_in_one_line(tmp_path: Path, small_fs: Path) -> None:
