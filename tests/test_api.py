@@ -22,6 +22,7 @@ FORTE = ROOT / "profiles" / "forte.yaml"
 runner = CliRunner()
 
 
+@pytest.mark.slow
 def test_load_gives_trials_as_xarray_dataframe_and_plot(tmp_path, forte_rigid) -> None:
     path = runfile.write_result(tmp_path / "sim.h5", forte_rigid)
     run = rig.load(path)

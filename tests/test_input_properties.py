@@ -137,6 +137,7 @@ def _assert_safe(cfg: RigConfig) -> None:
 
 @BUDGET
 @given(data=rig_mappings())
+@pytest.mark.slow
 def test_every_rig_config_is_refused_in_one_line_or_safe(folder: Path, data: Any) -> None:
     path = folder / "rig.yaml"
     path.write_text(yaml.safe_dump(data))

@@ -144,6 +144,7 @@ def test_cli_run_refuses_an_unsafe_rig_in_one_line(tmp_path: Path) -> None:
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_real_cli_process_refuses_a_bool_rate_with_exit_2(tmp_path: Path) -> None:
     rig = tmp_path / "rig.yaml"
     rig.write_text("backend: sim\ndrive: {port: sim}\nrates: {control_hz: true}\n")
@@ -304,6 +305,7 @@ def test_status_warning_says_aborted_or_running(tmp_path: Path) -> None:
     ["fit", "{run}", "--param", "compliant_string.stiffness", "--model", "{model}", "--jobs",
      "1", "--max-nfev", "2", "--duration", "0.02"],
 ])
+@pytest.mark.slow
 def test_analysis_commands_warn_on_an_aborted_run(tmp_path: Path, command: list[str]) -> None:
     run = _run_file(tmp_path, "aborted: drive fault")
     model = write(tmp_path, "effects: [compliant_string]\n", "m.yaml")

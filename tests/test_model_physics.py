@@ -33,7 +33,8 @@ def conservative_params() -> Parameters:
 INTEGRATORS = [
     pytest.param(lambda: DormandPrince(rtol=1e-10, max_step=1e-3), id="dopri54"),
     pytest.param(lambda: RungeKutta4(step=1e-5), id="rk4"),
-    pytest.param(lambda: ScipyIntegrator("LSODA", rtol=1e-10, max_step=1e-3), id="scipy-LSODA"),
+    pytest.param(lambda: ScipyIntegrator("LSODA", rtol=1e-10, max_step=1e-3), id="scipy-LSODA",
+                 marks=pytest.mark.slow),  # plain-Python right-hand side: seconds
 ]
 
 

@@ -89,6 +89,7 @@ def test_regulate_to_the_thesis_targets_writes_a_model_that_meets_them(tmp_path)
     assert out_yaml.read_text() == before
 
 
+@pytest.mark.slow
 def test_bad_targets_are_refused_in_one_line(tmp_path):
     bad = tmp_path / "t.yaml"
     bad.write_text("key_dip: 10.0\n")  # millimetres where metres are expected

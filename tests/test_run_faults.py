@@ -342,6 +342,7 @@ def test_two_runs_started_at_once_get_two_files(tmp_path: Path) -> None:
             assert h.attrs["status"] == "complete"
 
 
+@pytest.mark.slow
 def test_existing_out_file_is_not_overwritten_without_force(tmp_path: Path) -> None:
     _rig(tmp_path)
     (tmp_path / "run.h5").write_bytes(b"precious")
@@ -402,6 +403,7 @@ def small_fs(tmpfs) -> Path:
     return tmpfs("size=8m")
 
 
+@pytest.mark.slow
 def test_a_run_that_cannot_fit_is_refused_in_one_line(tmp_path: Path, small_fs: Path) -> None:
     _rig(tmp_path)
     prof = "name: long\nsegments:\n  - {hold: 30}\n"  # 30 s: ~6 MB of samples + overhead

@@ -74,6 +74,7 @@ def test_simulate_imports_only_what_it_uses(simulated):
     assert heavy(mods, NOT_FOR_SIMULATE) == []
 
 
+@pytest.mark.slow
 def test_help_and_info_are_light(simulated):
     work, cache, _ = simulated
     assert heavy(loaded(["--help"], cache, work), NOT_FOR_LIGHT) == []

@@ -160,6 +160,7 @@ def _backcheck_case(seed: int, load_cell_noise: float = 1.0):
     return cls, truth_v, ft.Data.build(meas, "force", 0.15, None, align_s=5e-4)
 
 
+@pytest.mark.slow
 def test_input_noise_covariance_scales_with_the_input_noise() -> None:
     # the model is driven by the measured force: its noise moves the fitted values. The
     # term is zero for a noise-free force and grows as the noise's variance (linear regime)
@@ -210,6 +211,7 @@ def test_fitted_values_scatter_within_their_stated_uncertainty() -> None:
     assert 0.6 * scatter < np.median(full) < 2.5 * scatter
 
 
+@pytest.mark.slow
 def test_noise_model_test_holds_its_level_and_keeps_its_power_beside_another_misfit() -> None:
     # held-out noise = white output noise + the model's response to the input's noise
     # (coloured); the test is given that noise model: its level, and its power when the
@@ -335,6 +337,7 @@ def test_default_window_ends_at_the_keys_release() -> None:
     assert ms.blow_window(held)[0] == pytest.approx(t[-1])  # never released: whole trial
 
 
+@pytest.mark.slow
 def test_floor_test_holds_its_level_on_a_right_models_residual_and_finds_a_misfit() -> None:
     # a right model's residual: white output noise plus its (coloured, strongly correlated)
     # response to the input's noise, drawn 32 times as diagnose draws it; the test of its

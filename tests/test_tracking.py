@@ -128,6 +128,7 @@ def test_limit_table_clips_force_and_rate():
     np.testing.assert_allclose(out, [0.0, 2.0, 4.0, 4.0, 2.0])  # and 0 reachable after it
 
 
+@pytest.mark.slow
 def test_a_diverging_gain_is_stopped_and_the_best_trial_kept():
     p, lrn, _, tables = learn("forte", "single", trials=8, factor=6.0)
     assert lrn.stopped is not None and "kept trial" in lrn.stopped
