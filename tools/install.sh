@@ -7,8 +7,8 @@
 #   bash tools/install.sh --newest   # .venv-newest: the newest versions pyproject.toml
 #                                    # allows, for the drift check (tools/test-newest.sh)
 #
-# The lock is made by `uv pip compile` (docs/performance.md, "The lock file"); pip alone
-# installs from it.
+# The lock is made by `uv pip compile` (docs/performance.md, "The lock file"); uv installs
+# from it (pip alone can too: pip install --require-hashes -r requirements.lock).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ "${1:-}" = "--newest" ]; then
@@ -20,5 +20,9 @@ if [ "${1:-}" = "--newest" ]; then
     exit 0
 fi
 python3 -m venv .venv
-.venv/bin/pip install -q --require-hashes -r requirements.lock
-.venv/bin/pip install -q --no-deps --no-build-isolation -e .
+# pip installs uv (tools/installer.lock, hash-checked); uv installs the lock, compiling the
+# bytecode as pip would, then rig itself
+.venv/bin/pip install -q --require-hashes -r tools/installer.lock
+.venv/bin/uv pip install -q --python .venv/bin/python --compile-bytecode --require-hashes \
+    -r requirements.lock
+.venv/bin/uv pip install -q --python .venv/bin/python --no-deps --no-build-isolation -e .
