@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # a rigid blow of 20 ms, then (optionally) a new compiled function that needs the
@@ -24,8 +26,6 @@ import numpy as np
 from rig.model import cache_loading
 from rig.model.action import ActionModel
 from rig import profiles
-
-pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
 m = ActionModel.from_yaml(None)
 p = profiles.load(sys.argv[1])
 r = m.simulate(p, 0.02)

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # a blow of the full model (flexible shank and key lift-off) for 60 ms with the named
@@ -37,8 +39,6 @@ for name, disp in (("rhs", k.rhs), ("rosenbrock", integrators_stiff.ros_run),
     disp._cache.load_overload = record
 from rig import profiles
 from rig.model.action import ActionModel
-
-pytestmark = pytest.mark.interpreter  # what these tests cost (pyproject.toml)
 m = ActionModel.from_yaml(None, effects=["flexible_shank", "key_liftoff"],
                           integrator=sys.argv[2])
 r = m.simulate(profiles.load(sys.argv[1]), 0.06)
