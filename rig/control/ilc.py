@@ -54,18 +54,13 @@ The update (``Learner``, model-based; issue 18):
 * The limits: every learned table is clipped to [0, limits.max_force_n] and its
   change per cycle to ``limits.max_rate_n_per_s * dt`` (``limit_table``), so no
   learned demand asks for what ``motor_torque.Limiter`` would have to cut.
-* The kept table: ``Learner.update`` keeps the trial with the lowest RMS error of the
-  load cell (the criterion `rig run --learn` prints with it); a later trial replaces it
-  only with a lower one, never one within the noise of it (issue 41: a table 0.05 % RMS
-  worse whose maximum error was 4.85 % against 2.82 % had been kept).
-* A worse trial is not a starting point: a trial worse than the best by more than the
-  noise explains (``_worse_than_best``) sends the learner back to the best table, which
-  the next trial replays (its error then averages with the best trial's, halving the
-  noise the next step sees: a more careful step from the best point). Learning stops
+* Divergence: ``Learner.update`` keeps the best trial (lowest RMS error; a later one
+  within the noise of it replaces it, ``_as_good_as_best``) and stops
   (``Learner.stopped``) when a trial's RMS error exceeds the best's by ``grow_factor``
-  (default 1.5), or at the second such worse trial. A trial whose maximum error fell
-  below the best's is not worse (the minimax plan trades mean error for maximum error:
-  a trial it lowered the maximum in is not diverging).
+  (default 1.5), or when two trials are worse than the best by more than the noise
+  explains (``_worse_than_best``) and have no smaller maximum error (the minimax plan
+  trades mean error for maximum error: a trial it lowered the maximum in is not
+  diverging).
 
 SI units throughout: forces N, times s.
 """
@@ -300,9 +295,6 @@ class Learner:
     _gains: list[tuple[float, float]] = field(default_factory=list)
     _candidates: list[plant.DriveModel] = field(default_factory=list)
     _falls: tuple[tuple[int, int], ...] | None = None
-    # the best trial's error, and the error sum and count of the trials averaged before it
-    # with the same table (what a replay of the best table averages with)
-    _best_err: tuple[np.ndarray, np.ndarray | None, int] = (np.zeros(0), None, 0)
 
     def __post_init__(self) -> None:
         if self.models is None:
@@ -358,32 +350,22 @@ class Learner:
         err = errors(self.reference, y, self.peak)
         err["trial"] = float(len(self.history) + 1)
         self.history.append(err)
-        e = self.reference - y
-        if self.best is None or err["rms_n"] < self.best["rms_n"]:
+        if self.best is None or self._as_good_as_best(err["rms_n"]):
             self.best, self.best_u, self._worse = err, self.u.copy(), 0
-            self._best_err = (e, self._err_sum, self._averaged)
-        elif self._worse_than_best(err["rms_n"], err["max_n"]):
-            self._worse += 1
-            assert self.best_u is not None
-            self.u = self.best_u.copy()
+        else:
+            if self._worse_than_best(err["rms_n"], err["max_n"]):
+                self._worse += 1
             if err["rms_n"] > self.grow_factor * self.best["rms_n"] or self._worse >= 2:
                 self.stopped = (f"the error grew (trial {int(err['trial'])}: RMS "
                                 f"{err['rms_pct']:.2f} % against {self.best['rms_pct']:.2f} % "
                                 f"in trial {int(self.best['trial'])}); kept trial "
                                 f"{int(self.best['trial'])}")
+                assert self.best_u is not None
+                self.u = self.best_u.copy()
                 self._err_sum, self._averaged = None, 0
                 self.notes.append("stopped")
                 return err
-            # not a starting point: the next trial replays the best table, and its error
-            # is averaged with the best trial's (and those it was averaged with)
-            best_e, best_sum, best_m = self._best_err
-            self._err_sum = best_e + (best_sum if best_sum is not None else 0.0)
-            self._averaged = best_m + 1
-            err["updated"] = 0.0
-            self.notes.append(f"worse than trial {int(self.best['trial'])} beyond the noise "
-                              f"(RMS {err['rms_pct']:.2f} % against "
-                              f"{self.best['rms_pct']:.2f} %): back to its table, replayed")
-            return err
+        e = self.reference - y
         if self.model_based:
             d = self.u if demand is None else np.asarray(demand, float)
             self._model_update(e, y, d, err)
@@ -587,6 +569,13 @@ class Learner:
         ms_e = max(self.best["rms_n"] ** 2 - nv, 0.0)
         return 2.0 * float(np.sqrt(2.0 * (2.0 * nv ** 2 + 4.0 * nv * ms_e)
                                    / self.reference.size))
+
+    def _as_good_as_best(self, rms_n: float) -> bool:
+        """Better than the best trial, or as good within the noise (``_margin``): the load
+        cell cannot tell them apart, and the later table, learned from more trials, is
+        kept."""
+        assert self.best is not None
+        return rms_n < self.best["rms_n"] or rms_n ** 2 <= self.best["rms_n"] ** 2 + self._margin()
 
     def _worse_than_best(self, rms_n: float, max_n: float = np.inf) -> bool:
         """Worse than the best trial by more than the noise explains: the mean square error

@@ -14,8 +14,7 @@ calibration's compensation or the 8 ms advance. The learning gain and lead come
 from the motor calibration record when one is in use, else the documented
 defaults (rig.control.ilc); the update's candidate models are the motor
 calibration's dynamic model and the thesis's single and rise/fall models. Learning
-keeps the trial with the lowest RMS error, goes back to its table after a trial worse
-beyond the noise, and stops early when the error grows; Ctrl-C, or a trial that
+stops early (keeping the best trial) when the error grows; Ctrl-C, or a trial that
 ends aborted, stops it too and keeps what was learned so far. The best table is
 written as a learned-feedforward record (rig.control.records) that later
 `rig run PROFILE` uses.
@@ -160,7 +159,6 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     rec = learned_records.build(cfg, profile, full_records, best_u, learner.history, best,
                                 filt_meta, stopped, created=_dt.datetime.now(_dt.UTC))
     rpath = learned_records.write(cfg, rec)
-    say(f"learned feedforward: trial {int(best['trial'])} (lowest RMS error), max error "
-        f"{best['max_pct']:.2f} %, "
+    say(f"learned feedforward: trial {int(best['trial'])}, max error {best['max_pct']:.2f} %, "
         f"RMS {best['rms_pct']:.2f} % of the peak; record {rpath}")
     return LearnReport(rec, rpath, learner.history, runs, stopped)
