@@ -16,6 +16,7 @@ the table's end (``clip``); the number clipped is counted and stored in the run 
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -33,14 +34,18 @@ class Result:
     clipped: int = 0
 
 
-class Step:
+class Step(abc.ABC):
+    """One calibration step of a column: raw values in, calibrated values out."""
+
     kind = ""
 
+    @abc.abstractmethod
     def apply(self, x: np.ndarray, t: np.ndarray, where: str) -> Result:
-        raise NotImplementedError
+        """The step applied to ``x`` (sampled at ``t``); ``where`` names it in errors."""
 
+    @abc.abstractmethod
     def describe(self) -> dict[str, Any]:
-        raise NotImplementedError
+        """The step as the map writes it (stored in the run file's provenance)."""
 
 
 @dataclass
