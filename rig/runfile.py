@@ -171,9 +171,11 @@ class TrialWriter:
 
     def write_events(self, events: Mapping[str, float], descriptions: Mapping[str, str]
                      | None = None, *, source: str | None = None,
-                     methods: Mapping[str, str] | None = None) -> None:
-        """Scalar event times (s); ``source`` (e.g. found in the measured channels) and each
-        event's ``method`` go to its attributes."""
+                     methods: Mapping[str, str] | None = None,
+                     intervals: Mapping[str, tuple[float, float]] | None = None) -> None:
+        """Scalar event times (s); ``source`` (e.g. found in the measured channels), each
+        event's ``method`` and its 95 % interval (``interval_low``/``interval_high``, s)
+        go to its attributes."""
         grp = self.group.require_group("events")
         for name, value in events.items():
             if name in grp:
@@ -187,6 +189,10 @@ class TrialWriter:
                 ds.attrs["source"] = source
             if methods and name in methods:
                 ds.attrs["method"] = methods[name]
+            if intervals and name in intervals:
+                ds.attrs["interval_low"], ds.attrs["interval_high"] = map(
+                    float, intervals[name])
+                ds.attrs["interval"] = "95 % interval of the time (s)"
 
     def set_attrs(self, **attrs: Any) -> None:
         for key, value in attrs.items():

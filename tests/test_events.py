@@ -89,3 +89,74 @@ def test_found_events_agree_with_the_models_own_on_the_simulated_rig(profile: st
     for name, t in found.items():
         assert abs(t - truth[name]) < 6e-4, (name, t, truth[name])
     assert list(found) == [n for n in events.EVENT_ORDER if n in found]
+
+
+# ---- confidence: each event's 95 % interval, on noisy and saturating channels ----
+def test_every_found_event_carries_an_interval_that_holds_its_time() -> None:
+    t = np.arange(-0.02, 0.2, 1 / RATE)
+    found = events.found(t, {"hammer_angle": _hammer(t, 0.05031, 0.08)})
+    assert set(found) == {"strike", "check"}
+    for e in found.values():
+        assert e.low <= e.time <= e.high and e.half_width <= 0.5e-3 and e.method
+    assert found["strike"].low <= 0.05031 <= found["strike"].high
+    assert found["check"].low - 1e-4 <= 0.08 <= found["check"].high + 1e-4
+
+
+def _noisy_key(rng: np.random.Generator, t: np.ndarray, t0: float, sd: float) -> np.ndarray:
+    """A key at rest that starts at ``t0`` with a constant acceleration of 60 m/s^2 (a
+    fast press: 2 mm in 8 ms), read with white noise of ``sd``."""
+    x = np.where(t > t0, 0.5 * 60.0 * (t - t0) ** 2, 0.0)
+    return x + rng.normal(0.0, sd, t.size)
+
+
+def test_a_noisy_keys_start_interval_covers_the_true_start() -> None:
+    """With rest noise of 65 um (the Kawai recording's key sensor) the 20 um threshold is
+    inside the noise: the start is found after the key surely left its rest, and its
+    interval covers the time the true motion passed 20 um in >= 90 % of 200 draws."""
+    rng = np.random.default_rng(7)
+    t = np.arange(-0.1, 0.05, 1 / RATE)
+    covered, n = 0, 200
+    for _ in range(n):
+        t0 = float(rng.uniform(0.0005, 0.0015))
+        truth = t0 + np.sqrt(2 * events.KEY_MOVE_THRESHOLD_M / 60.0)
+        e = events.found(t, {"key_dip": _noisy_key(rng, t, t0, 65e-6)})["key_starts"]
+        assert e.low <= e.time <= e.high and e.high - e.low < 8e-3
+        covered += e.low <= truth <= e.high
+    assert covered / n >= 0.9, covered
+
+
+def _saturating_hammer(t: np.ndarray, t_s: float, v_out: float, v_in: float,
+                       top: float, rng: np.random.Generator) -> np.ndarray:
+    """A hammer flying at ``v_out`` to the string at ``t_s`` and back at ``v_in``, read by
+    a sensor that compresses the motion toward ``top`` (a CNY-70 near its range's end:
+    y = top tanh(x / top)) and is clipped at 0.9 top (its calibration table's end), with
+    5 um noise: like the Kawai recording's shank sensor, out of range for a few ms."""
+    x = np.where(t < t_s, v_out * (t - t_s), -v_in * (t - t_s)) + 7e-3  # string 7 mm up
+    x = np.clip(x, 0.0, None)
+    y = top * np.tanh(x / top)
+    return np.minimum(y + rng.normal(0, 5e-6, t.size), 0.9 * top)
+
+
+@pytest.mark.parametrize("ratio", [0.4, 0.6, 0.8])
+def test_a_strike_beyond_the_sensors_range_is_bracketed_and_placed(ratio: float) -> None:
+    """The string is beyond the hammer sensor's range: the strike is placed from the
+    speeds into and out of the sensor's top; its interval covers the true time."""
+    rng = np.random.default_rng(3)
+    t = np.arange(-0.05, 0.1, 1 / RATE)
+    for t_s in (0.03, 0.03017, 0.03041):
+        h = _saturating_hammer(t, t_s, 1.0, ratio * 1.0, 3.7e-3, rng)
+        e = events.found(t, {"hammer_shank_rise": h})["strike"]
+        assert "saturated" in e.method
+        assert e.low <= t_s <= e.high, (t_s, e)
+        assert abs(e.time - t_s) < 1e-3
+
+
+def test_a_reading_clipped_at_the_table_end_is_no_key_bottom() -> None:
+    """A key sensor whose calibration ends before the key's bottom reads a flat top: that
+    is no catch of the front felt; without the out-of-range mask it would look like one."""
+    t = np.arange(-0.05, 0.1, 1 / RATE)
+    x = np.clip(np.where(t > 0, 0.4 * t, 0.0), None, 0.0105)  # 0.4 m/s, clipped at 10.5 mm
+    plain = events.found(t, {"key_dip": x})
+    assert "key_bottom" in plain  # the clip stops the reading as a felt would
+    masked = events.found(t, {"key_dip": x}, out_of_range={"key_dip": x >= 0.0105})
+    assert "key_bottom" not in masked and "key_starts" in masked

@@ -32,6 +32,7 @@ KINDS = ("linear", "normalize", "polynomial", "lookup", "tare")
 class Result:
     values: np.ndarray
     clipped: int = 0
+    out_of_range: np.ndarray | None = None  # the samples clipped (a lookup's), if any
 
 
 class Step(abc.ABC):
@@ -105,8 +106,8 @@ class Lookup(Step):
                              f"out_of_range: clip to clip them")
         xc = np.clip(x, lo, hi)
         if self.interpolation == "linear":
-            return Result(np.interp(xc, self.reading, self.value), n_out)
-        return Result(pchip(self.reading, self.value, xc), n_out)
+            return Result(np.interp(xc, self.reading, self.value), n_out, out)
+        return Result(pchip(self.reading, self.value, xc), n_out, out)
 
     def describe(self) -> dict[str, Any]:
         return {"lookup": {"reading": self.reading.tolist(), "value": self.value.tolist(),
@@ -238,11 +239,16 @@ def _lookup(body: Any, w: Any, number: Callable[..., float], mapping: Callable[.
     return Lookup(np.ascontiguousarray(reading), np.ascontiguousarray(value), interp, oor)
 
 
-def apply(steps: list[Step], x: np.ndarray, t: np.ndarray, where: str) -> tuple[np.ndarray, int]:
-    """The steps in order; returns the values and the samples a lookup clipped."""
+def apply(steps: list[Step], x: np.ndarray, t: np.ndarray, where: str
+          ) -> tuple[np.ndarray, int, np.ndarray]:
+    """The steps in order; returns the values, the number of samples a lookup clipped and
+    which (True: outside the sensor's calibrated range)."""
     clipped = 0
     y = np.asarray(x, float)
+    out = np.zeros(y.shape, bool)
     for s in steps:
         r = s.apply(y, t, where)
         y, clipped = r.values, clipped + r.clipped
-    return y, clipped
+        if r.out_of_range is not None:
+            out |= r.out_of_range
+    return y, clipped, out

@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from rig import runfile
+from rig.analysis import events
 from rig.errors import InputError, refuse_existing
+from rig.model.vocabulary import EVENT_DOCS
 from rig.recordings import calibration as cal
 from rig.recordings import mapfile, readers
 from rig.recordings import segment as sg
@@ -46,6 +48,7 @@ class Recording:
     time: np.ndarray
     channels: dict[str, np.ndarray]
     clipped: dict[str, int]
+    out_of_range: dict[str, np.ndarray] = field(default_factory=dict)  # clipped samples
     segmentation: sg.Segmentation | None = None
 
     def provenance(self) -> dict[str, Any]:
@@ -140,6 +143,7 @@ def read_recording(m: mapfile.ImportMap, path: Path) -> Recording:
         raise InputError(f"{path}: the time column has {t.size} samples, the data {n}")
     channels: dict[str, np.ndarray] = {}
     clipped: dict[str, int] = {}
+    out_of_range: dict[str, np.ndarray] = {}
     for c in m.columns:
         x = raw[c.channel]
         bad = np.flatnonzero(~np.isfinite(x))
@@ -147,7 +151,7 @@ def read_recording(m: mapfile.ImportMap, path: Path) -> Recording:
             raise InputError(f"{path}: column {c.source!r}: sample {int(bad[0])} is not a "
                              f"finite number")
         where = f"{path}: column {c.source!r} ({m.path.name} line {c.line}, {c.channel})"
-        y, nclip = cal.apply(c.steps, x, t, where)
+        y, nclip, oor = cal.apply(c.steps, x, t, where)
         y = y * c.factor
         if c.geometry is not None and not c.geometry.fitted:
             y = c.geometry.angle(y)
@@ -155,7 +159,8 @@ def read_recording(m: mapfile.ImportMap, path: Path) -> Recording:
             raise InputError(f"{where}: the calibration gives values that are not finite")
         channels[c.channel] = y
         clipped[c.channel] = nclip
-    return Recording(path, fmt, digest, size, t, channels, clipped)
+        out_of_range[c.channel] = oor
+    return Recording(path, fmt, digest, size, t, channels, clipped, out_of_range)
 
 
 def import_files(files: Sequence[Path], map_path: Path, out: Path, *, force: bool = False,
@@ -241,6 +246,13 @@ def _write(out: Path, m: mapfile.ImportMap, recs: list[Recording],
                     ds = tr.group["channels"][n]
                     ds.attrs["source"] = f"{rec.path.name}: column {cols[n].source}"
                     ds.attrs["clipped_samples"] = rec.clipped[n]
+                found = events.found(data["time"], data, out_of_range={
+                    n: v[a:b] for n, v in rec.out_of_range.items()})
+                if found:
+                    tr.write_events({n: e.time for n, e in found.items()}, EVENT_DOCS,
+                                    source=events.SOURCE,
+                                    methods={n: e.method for n, e in found.items()},
+                                    intervals={n: (e.low, e.high) for n, e in found.items()})
                 row = rows[k]
                 tr.set_attrs(status="complete", t0=t0, source_file=rec.path.name,
                              onset_s=row.onset_s, release_s=row.release_s,
