@@ -174,6 +174,12 @@ class Parameters:
         for i, part in enumerate(parts[:-1]):
             node = self._child(node, part, ".".join(parts[: i + 1]))
         last = parts[-1]
+        if isinstance(node, list) and node and all(_is_number(v) for v in node):
+            # a coordinate of a point (points.ground.Pg6.at.1: the let-off button's height)
+            if last.isdigit() and int(last) < len(node):
+                return node, int(last)
+            raise InputError(f"parameter {path!r}: {last} is not an index of "
+                             f"{'.'.join(parts[:-1])} (0 to {len(node) - 1})")
         if isinstance(node, list):
             return node, self._contact_index(node, last, path)
         if isinstance(node, dict):

@@ -205,3 +205,89 @@ def test_with_the_repetition_spring_regulated_every_single_stroke_strikes_once(t
         assert real_strikes(meas).size == 1
         got, again = blows(ms.simulate(model, meas, "motion"))
         assert got.size == 1 and again == 0, (k, got, again)
+
+
+def _motion_only(truth: ActionModel, radius: float = 0.0093, top: float = 0.9
+                 ) -> ms.Measurement:
+    """A stroke with no force channel, as an imported one: the key's dip (a simulated
+    forte blow's, 50 ms of rest before it) and the hammer read by a displacement sensor
+    at an unknown ``radius`` that saturates at ``top`` of its travel (2 um noise, then the
+    clip, as a lookup table's end leaves it); the hammer's motion is ``truth``'s own,
+    driven by that key motion."""
+    from rig import profiles
+    from rig.analysis import synth as sy
+
+    st = sy.synth_trial(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
+                        sy.default_rig(), 3, 0.15, True, 1.0)
+    t = np.r_[np.arange(-100, 0) / 2000.0, st.channels["time"]]
+    kd = np.r_[np.full(100, st.channels["key_dip"][0]), st.channels["key_dip"]]
+    key = ms.Measurement(t, {"time": t, "key_dip": kd}, {"time": "s", "key_dip": "m"})
+    res = ms.simulate(truth, key, "motion", 0.15)
+    h = res.channels["hammer_angle"]
+    th = np.interp(t, res.time, h, left=h[0]) - h[0]
+    d = -radius * th + np.random.default_rng(1).normal(0, 2e-6, t.size)
+    d = np.minimum(d, top * float(np.max(-radius * th)))
+    return ms.Measurement(t, {"time": t, "key_dip": kd, "hammer_shank_rise": d},
+                          {"time": "s", "key_dip": "m", "hammer_shank_rise": "m"},
+                          metadata={"import": {"columns": [{
+                              "channel": "hammer_shank_rise", "geometry": {
+                                  "radius": "fit", "angle_of": "hammer_angle"}}]}})
+
+
+def test_fit_by_motion_without_force_recovers_the_let_off_buttons_height():
+    """Another action's geometry from its motion alone (issue 38): no force channel, the
+    hammer seen through a sensor of unknown radius that saturates; `rig fit --input
+    motion`'s fit (the radius fitted in closed form at every evaluation, the saturated
+    samples left out) finds the let-off button 0.8 mm lower, within its interval."""
+    from rig.analysis import fit as ft
+
+    path = "points.ground.Pg6.at.1"  # the let-off button's height
+    base = ActionModel()
+    y0 = float(base.params.get(path))
+    tp = base.params.copy()
+    tp.set(path, y0 - 0.0008)
+    meas = _motion_only(ActionModel(tp))
+    data = ft.Data.build([meas], "motion", 0.15)
+    assert data.channels == [["hammer_angle"]] and data.geometry is not None
+    assert int(data.geometry[0]["hammer_angle"].sum()) > 5  # the saturated samples
+    res = ft.fit(base, data, [f"{path}=0.064:0.069"])
+    got, sd = res.values[path], res.sigma[path]
+    assert abs(got - (y0 - 0.0008)) <= max(3 * sd, 2e-5), (got, sd)
+    assert abs(y0 - got) > 10 * sd  # the default is excluded
+
+
+def test_a_points_coordinate_is_a_parameter_path():
+    from rig.errors import InputError
+
+    p = ActionModel().params.copy()
+    p.set("points.ground.Pg6.at.1", 0.066)
+    assert p.get("points.ground.Pg6.at") == [-0.0580, 0.066]
+    with pytest.raises(InputError, match="not an index"):
+        p.get("points.ground.Pg6.at.2")
+
+
+@pytest.mark.slow
+def test_fit_and_diagnose_by_motion_run_on_an_import_without_force(tmp_path):
+    """`rig fit` and `rig diagnose` with --input motion on a file with no force channel:
+    an excerpt of the Kawai recording (its first second of rest, then the fourth single
+    fast press) imported through the shipped map."""
+    from typer.testing import CliRunner
+
+    from rig.cli import app
+
+    lines = KAWAI_TXT.read_text().splitlines()
+    (tmp_path / "k.txt").write_text("\n".join(lines[:2000] + lines[67000:68800]) + "\n")
+    run = tmp_path / "k.h5"
+    importer.import_files([tmp_path / "k.txt"], KAWAI / "map.yaml", run)
+    assert "force" not in ms.load(run, None, "motion")[0].channels
+    r = CliRunner().invoke(app, ["fit", str(run), "--input", "motion", "--duration", "0.08",
+                                 "--param", "points.ground.Pg6.at.1=0.064:0.069"])
+    assert r.exit_code == 0, r.output
+    assert "points.ground.Pg6.at.1 = " in r.output
+    r = CliRunner().invoke(app, ["diagnose", str(run), "--input", "motion", "--trial", "1",
+                                 "--duration", "0.06", "--candidate", "key_liftoff",
+                                 "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    assert "each candidate alone" in r.output and "hammer_angle" in r.output
+    r = CliRunner().invoke(app, ["fit", str(run), "--param", "contacts.4.D"])
+    assert r.exit_code == 2 and "no force channel" in r.output

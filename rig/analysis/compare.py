@@ -207,9 +207,7 @@ def fit_geometries(meas: Measurement, time: np.ndarray, measured: dict[str, np.n
         if angle not in measured or angle in meas.channels or angle not in ref_pred:
             continue
         d, th = measured[angle], ref_pred[angle]
-        span = float(np.ptp(d)) or 1.0
-        sat = (d >= np.max(d) - 1e-9 * span) | (d <= np.min(d) + 1e-9 * span)
-        sat &= _held(d, sat)
+        sat = saturated(d)
         ok = ~sat & np.isfinite(th)
         den = float(np.sum(th[ok] ** 2))
         if ok.sum() < 10 or not den > 0:
@@ -226,6 +224,14 @@ def fit_geometries(meas: Measurement, time: np.ndarray, measured: dict[str, np.n
                       "samples": int(ok.sum()), "saturated": int(sat.sum()),
                       "rms_m": float(np.sqrt(np.mean(resid ** 2)))}
     return out
+
+
+def saturated(d: np.ndarray) -> np.ndarray:
+    """A displacement sensor's saturated samples: its extreme readings held two samples
+    or more (as a clipped lookup table leaves them)."""
+    span = float(np.ptp(d)) or 1.0
+    sat = (d >= np.max(d) - 1e-9 * span) | (d <= np.min(d) + 1e-9 * span)
+    return sat & _held(d, sat)
 
 
 def _held(d: np.ndarray, extreme: np.ndarray) -> np.ndarray:

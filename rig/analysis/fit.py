@@ -185,6 +185,12 @@ class Data:
     masks: list[np.ndarray]
     align_s: float = ALIGN_S
     windows: list[float | None] | None = None  # per-trial durations (None: ``duration``)
+    # per trial: a compared angle read from a displacement sensor whose radius is a fitted
+    # unknown (an imported map's ``radius: fit``) -> its saturated samples. Such a channel
+    # is compared in the sensor's units: the model's angle times the radius that fits it
+    # best at every evaluation (least squares, closed form), the saturated samples left
+    # out (``_sensor_units``).
+    geometry: list[dict[str, np.ndarray]] | None = None
 
     @classmethod
     def build(cls, measurements: Sequence[Measurement], input: str = "force",
@@ -193,7 +199,7 @@ class Data:
               windows: Sequence[float | None] | None = None) -> Data:
         """Prepared trials; each trial's window is ``windows[i]`` when given, else
         ``duration`` (None: the whole trial)."""
-        times, names, meas, ranges, noise = [], [], [], [], []
+        times, names, meas, ranges, noise, geo = [], [], [], [], [], []
         wins = list(windows) if windows is not None else [duration] * len(measurements)
         if len(wins) != len(measurements):
             raise InputError(f"windows: expected {len(measurements)}, got {len(wins)}")
@@ -204,14 +210,17 @@ class Data:
             meas.append(d)
             ranges.append({c: float(np.ptp(d[c])) or 1.0 for c in n})
             noise.append({c: ms.noise_sigma(d[c]) for c in n})
+            geo.append({a: cp.saturated(d[a]) for a in ms.fitted_geometries(m).values()
+                        if a in n and a not in m.channels})
         mk = list(masks) if masks is not None else [np.ones(t.shape, bool) for t in times]
         return cls(list(measurements), input, duration, names, times, meas, ranges, noise, mk,
-                   align_s, None if windows is None else wins)
+                   align_s, None if windows is None else wins,
+                   geo if any(geo) else None)
 
     def subset(self, masks: Sequence[np.ndarray]) -> Data:
         return Data(self.measurements, self.input, self.duration, self.channels, self.time,
                     self.measured, self.ranges, self.noise, list(masks), self.align_s,
-                    self.windows)
+                    self.windows, self.geometry)
 
     def window(self, i: int) -> float | None:
         """Trial ``i``'s analysis duration (s; None: the whole trial)."""
@@ -226,7 +235,30 @@ class Data:
                 continue
             res = ms.simulate(model, m, self.input, self.window(i))
             rel = {c: m.relative(c) for c in self.channels[i]}
-            out.append(cp.predicted_channels(res, self.time[i], self.channels[i], rel))
+            pred = cp.predicted_channels(res, self.time[i], self.channels[i], rel)
+            geo = list(self.geometry[i]) if self.geometry else []
+            if geo:  # angles from the model's rest, as compare reads them (imported strokes)
+                pred.update(cp.predicted_channels(res, self.time[i], geo, dict.fromkeys(
+                    geo, True), self.input == "motion"))
+            out.append(self._sensor_units(i, pred))
+        return out
+
+    def _sensor_units(self, i: int, pred: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Trial ``i``'s predicted angles that a fitted-radius sensor reads, in the sensor's
+        units: c theta with the signed radius c = sum(d theta) / sum(theta^2) over the
+        masked, unsaturated samples; the saturated samples take the measured value (no
+        residual: the sensor did not read the motion there)."""
+        if not self.geometry or not self.geometry[i]:
+            return pred
+        out = dict(pred)
+        for angle, sat in self.geometry[i].items():
+            th, d = pred.get(angle), self.measured[i][angle]
+            if th is None:
+                continue
+            ok = ~sat & self.masks[i] & np.isfinite(th)
+            den = float(np.sum(th[ok] ** 2))
+            c = float(np.sum(d[ok] * th[ok]) / den) if den > 0 else math.nan
+            out[angle] = np.where(sat, d, c * th)
         return out
 
     def aligned(self, preds: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:

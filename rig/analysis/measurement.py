@@ -112,11 +112,10 @@ def status_warning(path: str | Path) -> str | None:
 
 
 def load(path: str | Path, trials: Sequence[int] | None = None,
-         input: str = "force", *, force_for: str | None = None) -> list[Measurement]:
+         input: str = "force") -> list[Measurement]:
     """The trials of a run file as measurements (all of them by default). A trial without a
     force channel is refused unless ``input`` is ``motion`` (the key's measured motion
-    drives the model; the force is then only compared when the trial has one) and no
-    ``force_for`` (a command that needs the force whatever the input) is given."""
+    drives the model; the force is then only compared when the trial has one)."""
     run = runfile.read(path)
     if not run.trials:
         raise InputError(f"{path}: the run file holds no trial")
@@ -128,11 +127,9 @@ def load(path: str | Path, trials: Sequence[int] | None = None,
         tr = run.trials[i]
         if "time" not in tr.channels or tr.channels["time"].size < 20:
             raise InputError(f"{path}: trial {i} has no time channel or too few samples")
-        if "force" not in tr.channels and (input != "motion" or force_for):
-            why = (f"{force_for} needs one; `rig compare --input motion` compares a run "
-                   f"without it" if force_for else f"input {input} needs it; --input motion "
-                   f"drives the model by the key's motion")
-            raise InputError(f"{path}: trial {i} has no force channel ({why})")
+        if "force" not in tr.channels and input != "motion":
+            raise InputError(f"{path}: trial {i} has no force channel (input {input} needs "
+                             f"it; --input motion drives the model by the key's motion)")
         ev = {k: v for k, v in tr.events.items() if math.isfinite(v)}
         out.append(Measurement(np.asarray(tr.channels["time"], float),
                                {k: np.asarray(v, float) for k, v in tr.channels.items()},

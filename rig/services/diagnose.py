@@ -33,7 +33,7 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
         target, _, name = spec.rpartition(":")
         refs[cls.name] = (f"{Path(target).resolve()}:{name}" if target.endswith(".py")
                           else spec)
-    meas = ms.load(run, list(trials) if trials else None, input, force_for="rig diagnose")
+    meas = ms.load(run, list(trials) if trials else None, input)  # motion: no force needed
     label = Path(model_file).stem if model_file is not None else "base model"
     with executor_for(jobs, scheduler) as ex:
         diag = dg.diagnose(model, meas, input=input, duration=duration, channels=channels,

@@ -27,7 +27,7 @@ def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
     if not runs:
         raise InputError("runs: expected at least one run file")
     model = ActionModel.from_yaml(model_file)
-    meas = [m for r in runs for m in ms.load(r, None, input, force_for="rig fit")]
+    meas = [m for r in runs for m in ms.load(r, None, input)]  # motion: no force needed
     data = ft.Data.build(meas, input, duration, channels)
     with executor_for(jobs, scheduler) as ex:
         res = ft.fit(model, data, params, executor=ex, max_nfev=max_nfev, progress=progress,
