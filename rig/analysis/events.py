@@ -201,22 +201,19 @@ def _key_starts(m: _Motion) -> tuple[Found | None, float | None]:
     # crossings of every (t0, p) the F test at 5 % does not reject
     a = max(0, i - START_WINDOW)
     tt, yy = m.t[a:i + 3], s * d[a:i + 3]
-    cands: list[tuple[float, float]] = []  # (sse, crossing)
-    for p in (1.0, 2.0, 3.0):
-        for t0 in np.arange(tt[0], m.t[i], HINGE_GRID_S * 5):
-            g = np.maximum(0.0, tt - t0) ** p
-            gg = float(g @ g)
-            if gg <= 0:
-                continue
-            c = float(g @ yy) / gg
-            if c <= 0:
-                continue
-            r = yy - c * g
-            cands.append((float(r @ r), float(t0 + (KEY_MOVE_THRESHOLD_M / c) ** (1 / p))))
-    if not cands:
+    t0s = np.arange(tt[0], m.t[i], HINGE_GRID_S * 5)
+    sse_l, cross_l = [], []
+    for p in (1.0, 2.0, 3.0):  # every onset at once, in sample intervals
+        g = np.maximum(0.0, (tt[None, :] - t0s[:, None]) / m.dt) ** p
+        gg = np.sum(g * g, axis=1)
+        c = np.divide(g @ yy, gg, out=np.zeros_like(gg), where=gg > 0)
+        good = c > 0
+        r = yy[None, :] - c[:, None] * g
+        sse_l.append(np.sum(r * r, axis=1)[good])
+        cross_l.append(t0s[good] + m.dt * (KEY_MOVE_THRESHOLD_M / c[good]) ** (1 / p))
+    sse, cross = np.concatenate(sse_l), np.concatenate(cross_l)
+    if sse.size == 0:
         return None, None
-    sse = np.array([c[0] for c in cands])
-    cross = np.array([c[1] for c in cands])
     k = int(np.argmin(sse))
     dof = max(tt.size - 3, 1)  # t0, c and the shape
     inside = cross[sse - sse[k] <= stats.f.ppf(0.95, 1, dof) * sse[k] / dof]
@@ -256,12 +253,18 @@ def _catch(m: _Motion, s: float, i_from: int, valid: np.ndarray | None = None
         return nan
     tt, vv = m.tc[lo:a + 1], m.v[lo:a + 1]
     grid = np.arange(tt[1], tt[-1], HINGE_GRID_S)
-    sse = np.full(grid.size, math.inf)
-    for g, t0 in enumerate(grid):
-        x = np.column_stack([np.ones_like(tt), tt - tt[0], np.maximum(0.0, tt - t0) ** 2])
-        coef, *_ = np.linalg.lstsq(x, vv, rcond=None)
-        if -s * coef[2] > 0:
-            sse[g] = float(np.sum((x @ coef - vv) ** 2))
+    # every onset's least squares at once (times in sample intervals: well conditioned)
+    u, ug = (tt - tt[0]) / m.dt, (grid - tt[0]) / m.dt
+    x = np.empty((grid.size, tt.size, 3))
+    x[:, :, 0], x[:, :, 1] = 1.0, u
+    x[:, :, 2] = np.maximum(0.0, u[None, :] - ug[:, None]) ** 2
+    xtx = np.einsum("gni,gnj->gij", x, x)
+    xtv = np.einsum("gni,n->gi", x, vv)
+    ok = np.abs(np.linalg.det(xtx)) > 1e-12
+    coef = np.zeros((grid.size, 3))
+    coef[ok] = np.linalg.solve(xtx[ok], xtv[ok][..., None])[..., 0]
+    r = np.einsum("gni,gi->gn", x, coef) - vv
+    sse = np.where(ok & (-s * coef[:, 2] > 0), np.sum(r ** 2, axis=1), math.inf)
     if not np.isfinite(sse).any():
         return nan
     g_best = int(np.argmin(sse))
