@@ -563,7 +563,7 @@ def recover(
 ) -> None:
     """Rebuild a run file from the journal its run left beside it (a full disk, a killed or
     crashed run): every block the acquisition flushed, the loop's records, the status."""
-    from rig import journal
+    from rig.loop import journal
 
     try:
         rec = journal.recover(run, out=out, force=force)

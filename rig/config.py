@@ -26,7 +26,7 @@ from rig.params import load_yaml_file
 # ``buffer_s: .inf`` are refused rather than read as 1 Hz or an endless buffer.
 _STRICT_FINITE = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-# The run's own channel names (rig/acquisition.py, rig/calrecords.py, rig/runfile.py): an
+# The run's own channel names (rig/loop/acquisition.py, rig/sensors/table.py, rig/runfile.py): an
 # encoder channel named like one of them would replace the load-cell force, the sample
 # counter or the time base in the run file and blind the analysis and the safety checks.
 RESERVED_CHANNELS = frozenset({

@@ -174,7 +174,7 @@ def test_close_falls_back_to_a_fresh_task_when_the_loop_task_fails(fake) -> None
 
 
 def test_the_supervisor_zeroes_the_drive_output_with_a_new_task(fake, rig) -> None:
-    from rig.supervisor import make_safe
+    from rig.loop.supervisor import make_safe
 
     rig.start()
     rig.daq.wait_for_tick()

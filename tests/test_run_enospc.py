@@ -1,5 +1,5 @@
 """A full disk and killed writers lose nothing that was flushed (issue 37): the run file's
-journal (rig.journal), ENOSPC injected at random writes of a 3-trial simulated run, SIGKILL
+journal (rig.loop.journal), ENOSPC injected at random writes of a 3-trial simulated run, SIGKILL
 of every process of a run, and a real tmpfs that fills at once."""
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import config, journal, runfile
+from rig import config, runfile
 from rig.cli import app
 from rig.errors import InputError
+from rig.loop import journal
 from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"

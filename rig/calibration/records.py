@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from rig.calibration.settings import records_folder, settings_for
-from rig.calrecords import CalRecord, nominal
 from rig.config import RigConfig
 from rig.errors import InputError
+from rig.sensors.table import CalRecord, nominal
 from rig.version import __version__
 
 FORMAT = "rig-calibration"

@@ -26,7 +26,7 @@ service enables the drive; a failed 0 V write (``write_volts(0)``, ``close``) fa
 back to a fresh task on the same channel.
 
 Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): the sensors
-of ``rig.calrecords.sensors``, each set up by its own ``ni_channel``: one
+of ``rig.sensors.table.sensors``, each set up by its own ``ni_channel``: one
 continuous AI task with the analog ones (the load-cell and strain bridges, V/V,
 the SCXI-1520's lowpass set from the config) at 2 kHz, and one counter task per
 counter (the encoders: ticks, x4) clocked from the AI sample clock; counters start
@@ -56,10 +56,11 @@ from nidaqmx.constants import (
 )
 from nidaqmx.error_codes import DAQmxErrors
 
-from rig import calrecords, loadcell, strain
+from rig import loadcell, strain
 from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
+from rig.sensors import table as sensor_table
 
 # the DAQmx errors that mean samples were lost (buffer or FIFO overflow, counter overrun)
 OVERFLOW_ERRORS = frozenset({
@@ -288,8 +289,8 @@ class NiReader(Reader):
         buf = int(cfg.acquisition.buffer_s * rate)
         self.fb = shared_memory.SharedMemory(name=spec["feedback"]) if spec.get("feedback") \
             else None
-        self.names = calrecords.raw_names(cfg)
-        table = calrecords.sensors(cfg)
+        self.names = sensor_table.raw_names(cfg)
+        table = sensor_table.sensors(cfg)
         self.ai = new_task("rig-bridges")
         self.ai_names = [s.raw for s in table if not s.ni_counter]
         self.ai_sensors = [s.name for s in table if not s.ni_counter]  # DAQmx channel names
@@ -378,7 +379,7 @@ class NiReader(Reader):
                                f"{_error_name(exc.error_code)}): samples were lost") from None
             raise DaqFault(f"acquisition read failed (DAQmx {_error_name(exc.error_code)}): "
                            f"{exc}") from None
-        cols = {calrecords.SAMPLE: self.count + np.arange(n, dtype=float),
+        cols = {sensor_table.SAMPLE: self.count + np.arange(n, dtype=float),
                 **dict(zip(self.ai_names, ai, strict=True)),
                 **dict(zip(self.ci_names, counts, strict=True))}
         self.count += n

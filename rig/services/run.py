@@ -3,7 +3,7 @@
     report = run(Path("profiles/forte.yaml"), cfg, trials=3, on_line=print)
 
 The run's process holds the 500 Hz torque loop; a separate acquisition
-process (rig.acquisition) owns the run file and streams the 2 kHz channels.
+process (rig.loop.acquisition) owns the run file and streams the 2 kHz channels.
 Order: validate the profile against the rig's limits (nothing moves if it is
 refused) -> start the acquisition process -> zero the drive output (NI: read it
 back) -> enable the drive -> arm the cards -> loop -> zero demand -> disable the
@@ -14,10 +14,10 @@ record is in use, its inverse force map of profile(t + lag) -- controller hook
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
 
-Its parts, by job: the controller hook in rig.controller, the feedforward choice in
-rig.calibration.motor.demand_source, the loop thread's OS set-up in rig.pacing
+Its parts, by job: the controller hook in rig.loop.hook, the feedforward choice in
+rig.calibration.motor.demand_source, the loop thread's OS set-up in rig.loop.scheduling
 (``loop_cpu``, ``LoopScheduling``), the loop's records, the acquisition's end and the
-file's recovery in rig.recovery.
+file's recovery in rig.loop.recovery.
 """
 
 from __future__ import annotations
@@ -41,17 +41,18 @@ from typing import Any
 
 import numpy as np
 
-from rig import journal, loadcell, motor_torque, pacing, profiles, recovery, runfile
-from rig.acquisition import run_acquisition
+from rig import loadcell, motor_torque, profiles, runfile
 from rig.analysis import events
 from rig.backends import open_daq
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
-from rig.controller import Controller, load_controller
 from rig.daq import Daq
-from rig.drive import Drive, DriveError, DriveMonitor
 from rig.errors import InputError
+from rig.loop import journal, recovery, scheduling
+from rig.loop.acquisition import run_acquisition
+from rig.loop.drive import Drive, DriveError, DriveMonitor
+from rig.loop.hook import Controller, load_controller
 from rig.model.vocabulary import EVENT_DOCS
 
 
@@ -197,10 +198,10 @@ def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
     (the whole run's samples at ``bytes_per_sample``, twice: the file and its journal; the
     file's overhead and the margin the
     acquisition keeps free); the estimate in bytes."""
-    from rig.acquisition import SPACE_MARGIN, bytes_per_sample
+    from rig.loop.acquisition import SPACE_MARGIN, bytes_per_sample
 
     seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
-    # the samples twice: in the run file and in its journal (rig.journal)
+    # the samples twice: in the run file and in its journal (rig.loop.journal)
     need = 2 * int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) \
         + FILE_OVERHEAD + SPACE_MARGIN
     probe = folder
@@ -384,7 +385,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
-    cpu = pacing.loop_cpu(cfg, say)
+    cpu = scheduling.loop_cpu(cfg, say)
     if cfg.backend == "sim":  # (seconds of silence otherwise: say what the start is doing)
         say("building the simulated rig's action model ..." if lockstep or not cfg.sim.realtime
             else "starting the simulated rig's process (it builds the action model) ...")
@@ -400,7 +401,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     reason: str | None = None
     last_tick = -1
     abort_tb: str | None = None
-    sched = pacing.LoopScheduling()
+    sched = scheduling.LoopScheduling()
     try:
         if cfg.drive.port == "sim":
             from rig.sim_backend.daq import SimDaq
@@ -561,7 +562,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
 def _add_findings(path: Path, final: str, rep: dict[str, Any],
                   found: dict[int, dict[str, float]]) -> None:
     """The repeatability and the events found, added to the closed run file."""
-    from rig.acquisition import SPACE_MARGIN
+    from rig.loop.acquisition import SPACE_MARGIN
 
     if shutil.disk_usage(path.parent).free < SPACE_MARGIN:
         raise OSError(errno.ENOSPC, f"No space left on device (under {SPACE_MARGIN // 1024} "

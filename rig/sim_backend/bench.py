@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords
 from rig import strain as strain_mod
 from rig.config import RigConfig
 from rig.daq import Bench, Live, bridge_range, check_bridge
 from rig.errors import InputError
+from rig.sensors import table as sensor_table
 
 
 class SimBench(Bench):
@@ -94,5 +94,5 @@ class SimBench(Bench):
         vpn = self.cfg.drive_scaling.volts_per_newton
         rows = np.vstack([rig.cycle(float(f) * vpn) for f in np.asarray(force_n, float)])
         raw = {s.name: s.raw for s in rig.table}
-        return {name: rows[:, calrecords.column(self.cfg, raw[name])]
+        return {name: rows[:, sensor_table.column(self.cfg, raw[name])]
                 for name in self.cfg.channels.encoders}

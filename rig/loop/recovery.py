@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import journal, runfile
-from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS
+from rig import runfile
 from rig.config import RigConfig
+from rig.loop import journal
+from rig.sensors.table import COMMAND_DOCS, COMMAND_UNITS
 
 COLUMNS = tuple(COMMAND_UNITS)  # a loop record's columns (the run file's commands/) ...
 TRIAL = len(COLUMNS)            # ... and then the index of its trial
@@ -190,7 +191,7 @@ def _finish_from_journal(path: Path, rows: LoopRecords, trials: int, final: str,
                          errors: list[str]) -> Finished:
     """The acquisition died or failed and left its journal: add the loop's records it had not
     written, the metadata and the final status to the journal, then rebuild the run file
-    from it (rig.journal.recover) when the disk has room; else leave the journal (and the
+    from it (rig.loop.journal.recover) when the disk has room; else leave the journal (and the
     HDF5 file as the acquisition left it) for ``rig recover``. The HDF5 file is never written
     here: after a failed write (a full disk) HDF5 may fail again or crash."""
     jpath = journal.journal_path(path)
