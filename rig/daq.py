@@ -169,9 +169,5 @@ class Bench(ABC):
     def key_travel(self, force_n: np.ndarray) -> dict[str, np.ndarray]:
         """Press the key with ``force_n`` (N, one per control period); counts per encoder."""
 
-    def truth(self) -> dict[str, dict[str, float]]:
-        """True sensor parameters (simulated bench only)."""
-        raise RuntimeError("only the simulated bench knows its sensors' true values")
-
     def close(self) -> None:  # noqa: B027 - nothing to release by default
         """Release cards and tasks."""

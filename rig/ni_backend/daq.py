@@ -416,3 +416,18 @@ class NiReader(Reader):
             self.fb.close()
         if first is not None:
             raise first
+
+
+def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
+    """How the run's fresh bridge channels are calibrated before the run (NI), as their
+    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
+    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
+    calibration reads its offset with masses, is left as calibrated."""
+    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
+    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
+    if rs is None:
+        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
+    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
+            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
+                             "shunt_resistor_ohm": float(rs),
+                             "from": "calibration record" if rec else "config"}}

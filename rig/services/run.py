@@ -43,7 +43,7 @@ import numpy as np
 
 from rig import loadcell, motor_torque, profiles, runfile
 from rig.analysis import events
-from rig.backends import open_daq
+from rig.backends import check_drive_port, open_daq, open_drive_port, reader_calibration
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
@@ -64,21 +64,6 @@ def enable_at_zero(daq: Daq, drive: Drive, say: Callable[[str], None]) -> None:
     if volts is not None:
         say(f"drive output reads {volts:+.4f} V after writing 0 V: enabling the drive")
     drive.enable()
-
-
-def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
-    """How the run's fresh bridge channels are calibrated before the run (NI), as their
-    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
-    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
-    calibration reads its offset with masses, is left as calibrated."""
-    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
-    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
-    if rs is None:
-        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
-    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
-            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
-                             "shunt_resistor_ohm": float(rs),
-                             "from": "calibration record" if rec else "config"}}
 
 
 @dataclass
@@ -306,8 +291,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
                             max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
-    if cfg.backend == "ni" and cfg.drive.port == "sim":
-        raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+    check_drive_port(cfg)
     ctl = controller or load_controller(cfg.loop.controller)
     cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
@@ -376,8 +360,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
-    bridge_spec = {"bridge_cal": bridge_calibration(cfg, full_records)} \
-        if cfg.backend == "ni" else {}
+    bridge_spec = reader_calibration(cfg, full_records)
     metadata["run"]["bridges"] = {
         "lowpass_hz": {"load_cell": cfg.channels.load_cell.lowpass_hz,
                        "strain_gauge": cfg.channels.strain_gauge.lowpass_hz},
@@ -386,9 +369,6 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         metadata["learned_feedforward"] = learned
 
     cpu = scheduling.loop_cpu(cfg, say)
-    if cfg.backend == "sim":  # (seconds of silence otherwise: say what the start is doing)
-        say("building the simulated rig's action model ..." if lockstep or not cfg.sim.realtime
-            else "starting the simulated rig's process (it builds the action model) ...")
     daq = open_daq(cfg, lockstep=lockstep, on_line=say)
     sim_drive = None
     ctx = mp.get_context("spawn")
@@ -403,15 +383,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     abort_tb: str | None = None
     sched = scheduling.LoopScheduling()
     try:
-        if cfg.drive.port == "sim":
-            from rig.sim_backend.daq import SimDaq
-            from rig.sim_backend.drive_pty import SimDrive
-
-            assert isinstance(daq, SimDaq)
-            sim_drive = SimDrive(cfg.drive, daq.drive_state)
-            drive = Drive(cfg.drive, sim_drive.port)
-        else:
-            drive = Drive(cfg.drive)
+        port, sim_drive = open_drive_port(cfg, daq)
+        drive = Drive(cfg.drive, port)
         proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
             {**daq.reader_spec(), **bridge_spec}, cfg.model_dump(mode="json"),
             {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))

@@ -29,6 +29,7 @@ class SimBench(Bench):
         self._rig: Any = None
 
     def truth(self) -> dict[str, dict[str, float]]:
+        """True sensor parameters (only the simulated bench knows them)."""
         return self.sensors.truth()
 
     def apply_mass(self, mass_kg: float, gravity_m_s2: float) -> None:
