@@ -23,7 +23,7 @@ from rig import config, runfile
 from rig.cli import app
 from rig.errors import InputError
 from rig.loop import journal
-from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
+from rig.sim_backend.rig_process import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"
 RIG = {"name": "enospc", "backend": "sim", "drive": {"port": "sim", "poll_period_s": 0.01},

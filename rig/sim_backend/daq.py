@@ -7,7 +7,7 @@ lock-step (each tick comes as soon as the loop asks; the card buffer makes
 the loop wait for the acquisition process rather than overflow).
 
 Real time: the physics (drive, action, sensors) runs in its own process
-(``rig.sim_backend.plant``), so the loop only paces and writes, as on the real
+(``rig.sim_backend.rig_process``), so the loop only paces and writes, as on the real
 cards; each control period is simulated with the demand the loop wrote for
 it, so the physics matches lock-step, only later (the loop's feedback sees the
 plant's latest sample). Lock-step: the physics runs in the loop's process,
@@ -34,7 +34,7 @@ from rig.sensors import table as sensor_table
 from rig.sim_backend import clock
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
-from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
+from rig.sim_backend.rig_process import PlantLink, SharedDriveState, run_plant
 from rig.sim_backend.simrig import SimRig
 
 CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
