@@ -270,6 +270,15 @@ def _create_exclusive(path: Path) -> None:
     os.close(fd)
 
 
+def learned_record(profile_path: Path, cfg: RigConfig) -> tuple[dict[str, Any], Path] | None:
+    """The learned-feedforward record (rig.control.records) for this profile, rig and
+    calibration, with its file; None when there is none (issue 18)."""
+    from rig.control import records as learned_records
+
+    prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
+
+
 def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
