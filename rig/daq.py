@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from rig.config import RigConfig
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 
 
-class DaqFault(RuntimeError):
+class DaqFault(RigError, RuntimeError):
     """The cards reported a condition that must stop the run (overflow, missing hardware...)."""
 
 

@@ -35,8 +35,9 @@ FORMAT_VERSION = 1
 SENSORS = ("load_cell", "strain_gauge", "motor", "encoders")
 
 
-class MissingCalibration(RuntimeError):
-    """A real-hardware run needs a calibration record that does not exist."""
+class MissingCalibration(InputError, RuntimeError):
+    """A real-hardware run needs a calibration record that does not exist (the user's to
+    make with `rig calibrate`: one line, exit 2)."""
 
 
 class CalibrationAgeWarning(UserWarning):

@@ -28,7 +28,7 @@ from rig.cli.common import (
     err,
     options,
 )
-from rig.errors import refuse_existing
+from rig.errors import InputError, refuse_existing
 
 __all__ = ["app", "main", "options"]
 
@@ -319,7 +319,7 @@ def run_profile(
     record = None
     if learn:
         if trials != 1:
-            raise _fail(ValueError("--learn: plays one trial per learning step; drop --trials"))
+            raise _fail(InputError("--learn: plays one trial per learning step; drop --trials"))
         from rig.services import learn as learn_svc
 
         _plain(which)

@@ -47,7 +47,7 @@ from rig import runfile
 from rig.backends import open_reader
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 from rig.loop import journal
 from rig.loop.supervisor import ControllerWatch, make_safe
 from rig.sensors import table as sensor_table
@@ -58,7 +58,7 @@ ABORT_DRAIN_S = 0.3  # s: the wait for the samples of an aborted run's last tick
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
 
 
-class DiskFull(OSError):
+class DiskFull(RigError, OSError):
     """Too little free space left to write the next block safely."""
 
 
@@ -235,7 +235,7 @@ class Acquisition:
         self.writer.close(status)
 
 
-class _ControllerDied(Exception):
+class _ControllerDied(RigError):
     def __init__(self, watch: ControllerWatch) -> None:
         super().__init__(f"the controller process (pid {watch.pid}) died; the supervisor zeroed "
                          f"the demand and disabled the drive")

@@ -93,9 +93,11 @@ class Finished:
 
 def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, status: str,
             stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
-            abort_tb: str | None = None, done_trials: int = 0) -> Finished:
-    """Stop the acquisition process and see the file closed; recover it if the process died."""
-    meta: dict[str, Any] = {"loop_lateness": stats}
+            abort_tb: str | None = None, done_trials: int = 0,
+            extra_meta: dict[str, Any] | None = None) -> Finished:
+    """Stop the acquisition process and see the file closed; recover it if the process died.
+    ``extra_meta``: more of the run's metadata from the loop's side (a failed drive disable)."""
+    meta: dict[str, Any] = {"loop_lateness": stats, **(extra_meta or {})}
     if abort_tb is not None:
         meta["abort_traceback"] = abort_tb
     tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}

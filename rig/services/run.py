@@ -48,7 +48,7 @@ from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
 from rig.daq import Daq
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 from rig.loop import journal, recovery, scheduling
 from rig.loop.acquisition import run_acquisition
 from rig.loop.drive import Drive, DriveError, DriveMonitor
@@ -92,7 +92,7 @@ class RunReport:
         return self.status == "complete"
 
 
-class _Abort(Exception):
+class _Abort(RigError):
     pass
 
 
@@ -336,7 +336,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             signal.signal(sig, old)
 
 
-class RunStopped(RuntimeError):
+class RunStopped(RigError, RuntimeError):
     """A stop signal arrived while the run was starting (nothing moved, no file kept)."""
 
 
@@ -391,6 +391,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     last_tick = -1
     abort_tb: str | None = None
     sched = scheduling.LoopScheduling()
+    disable_failed: str | None = None
     try:
         port, sim_drive = open_drive_port(cfg, daq)
         drive = Drive(cfg.drive, port)
@@ -496,7 +497,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         _safe(lambda: daq.write_volts(0.0))
         sched.undo()
         if drive is not None and drive.enabled:
-            _safe(drive.disable)
+            disable_failed = _disable(drive, trace or say)
         if monitor is not None:
             monitor.stop()
 
@@ -509,7 +510,9 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
         fin = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
-                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
+                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials,
+                              {"drive_disable_failed": disable_failed} if disable_failed
+                              else None)
     finally:
         if reason is not None:  # (a simulated plant behind the loop: not its whole backlog)
             _safe(daq.stop_at_once)
@@ -582,6 +585,20 @@ def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict
 
 def daq_lockstep(daq: Daq) -> bool:
     return bool(getattr(daq, "lockstep", False))
+
+
+def _disable(drive: Drive, report: Callable[[str], None]) -> str | None:
+    """Disable the drive at the run's end; a failure is reported (``report``: the CLI's
+    stderr) and returned for the run file's metadata (``drive_disable_failed``), and the
+    cleanup goes on (0 V is already out)."""
+    try:
+        drive.disable()
+    except Exception as exc:  # noqa: BLE001 - reported and recorded; the cleanup goes on
+        why = f"{type(exc).__name__}: {exc}"
+        report(f"WARNING: the drive did not take its disable command ({why}); the demand is "
+               f"0 V: switch the drive off at its panel")
+        return why
+    return None
 
 
 def _safe(fn: Callable[[], Any]) -> None:
