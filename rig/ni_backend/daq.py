@@ -56,10 +56,10 @@ from nidaqmx.constants import (
 )
 from nidaqmx.error_codes import DAQmxErrors
 
-from rig import loadcell, strain
 from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
+from rig.ni_backend import channels
 from rig.sensors import table as sensor_table
 
 # the DAQmx errors that mean samples were lost (buffer or FIFO overflow, counter overrun)
@@ -296,7 +296,7 @@ class NiReader(Reader):
         self.ai_sensors = [s.name for s in table if not s.ni_counter]  # DAQmx channel names
         for s in table:
             if not s.ni_counter:
-                s.ni_channel(self.ai)
+                channels.set_up(self.ai, s)
         self.ai.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
                                            samps_per_chan=buf)
         self.ai.in_stream.overwrite = OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES
@@ -308,7 +308,7 @@ class NiReader(Reader):
             if not s.ni_counter:
                 continue
             task = new_task(f"rig-encoder-{s.name}")
-            s.ni_channel(task)
+            channels.set_up(task, s)
             task.timing.cfg_samp_clk_timing(rate, source=ch.ai_sample_clock,
                                             sample_mode=AcquisitionType.CONTINUOUS,
                                             samps_per_chan=buf)
@@ -333,9 +333,9 @@ class NiReader(Reader):
             if sensor not in self.ai_sensors or not how.get("null"):
                 continue
             rs = how.get("shunt_resistor_ohm")
-            gain = loadcell.ni_calibrate(self.ai, ch.load_cell, sensor, rs) \
+            gain = channels.calibrate_load_cell(self.ai, ch.load_cell, sensor, rs) \
                 if sensor == "load_cell" else \
-                strain.ni_calibrate(self.ai, ch.strain_gauge, sensor, rs)
+                channels.calibrate_strain_gauge(self.ai, ch.strain_gauge, sensor, rs)
             self.shunt_gain[sensor] = gain
             if gain is not None:
                 self.ai.ai_channels[sensor].ai_bridge_shunt_cal_gain_adjust = 1.0
