@@ -20,4 +20,4 @@ for line in Path(".venv-newest/versions.txt").read_text().splitlines():
     if version and locked.get(norm(name)) != version:
         print(f"  {name} {version} (lock: {locked.get(norm(name), 'not locked')})")
 PY
-exec .venv-newest/bin/python -m pytest -m "not slow or docs" "$@"
+exec .venv-newest/bin/python -m pytest -m "not slow or docs" -n auto --dist loadfile "$@"

@@ -286,6 +286,7 @@ def _acquire(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     controller_pid = controller_pid or os.getppid()
     journal.set_process("acquisition")
+    journal.DiskFullEchoes().install()  # h5py's frees after ENOSPC: one "disk full" line
     cfg = from_mapping(cfg_data)
     records = {k: CalRecord(**v) for k, v in cals.items()}
     code = 0

@@ -40,10 +40,12 @@ import fcntl
 import json
 import os
 import struct
+import sys
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import numpy as np
@@ -107,6 +109,40 @@ def is_disk_full(exc: BaseException) -> bool:
     text = str(exc)
     return "errno = 28" in text or "No space left on device" in text or (
         "errno = 122" in text)
+
+
+class DiskFullEchoes:
+    """Keeps the echoes of a full disk off stderr, counting them.
+
+    After a write fails with ENOSPC, h5py's objects fail again as they are freed; Cython
+    reports each such failure from ``__dealloc__`` by printing its traceback (through
+    ``sys.excepthook``) and an "Exception ignored" line (``sys.unraisablehook``). The run
+    has already said "disk full" once; these are that same fault again, so they are
+    counted here instead of printed. Any other exception reaches the hooks it had before.
+    """
+
+    def __init__(self) -> None:
+        self.count = 0
+        self._except = sys.excepthook
+        self._unraisable = sys.unraisablehook
+
+    def install(self) -> DiskFullEchoes:
+        sys.excepthook = self._on_exception
+        sys.unraisablehook = self._on_unraisable
+        return self
+
+    def _on_exception(self, kind: type[BaseException], exc: BaseException,
+                      tb: TracebackType | None) -> None:
+        if is_disk_full(exc):
+            self.count += 1
+        else:
+            self._except(kind, exc, tb)
+
+    def _on_unraisable(self, info: Any) -> None:
+        if info.exc_value is not None and is_disk_full(info.exc_value):
+            self.count += 1
+        else:
+            self._unraisable(info)
 
 
 def _encode(kind: str, fields: Mapping[str, Any], arrays: list[np.ndarray]) -> bytes:
