@@ -318,7 +318,7 @@ def test_a_tmpfs_filled_at_once_mid_run(tmp_path: Path, tiny_fs: Path) -> None:
 
 _ECHO_SCRIPT = r"""
 import sys, h5py, numpy as np
-from rig import journal
+from rig.loop import journal
 if sys.argv[2] == "quiet":
     journal.DiskFullEchoes().install()
 f = h5py.File(sys.argv[1], "w", libver="latest")
@@ -347,7 +347,7 @@ def test_hdf5_frees_after_a_full_disk_do_not_reach_stderr(tmp_path: Path, tmpfs,
                                                          mode: str) -> None:
     """After ENOSPC h5py's objects fail again as they are freed (an "Exception ignored"
     traceback each, seen on stderr of `rig run` when a tmpfs filled at once): the
-    acquisition counts them instead (journal.DiskFullEchoes); other errors still print."""
+    acquisition counts them instead (rig.loop.journal.DiskFullEchoes); other errors still print."""
     small = tmpfs("size=2m")
     script = tmp_path / "echo.py"
     script.write_text(_ECHO_SCRIPT)
