@@ -330,7 +330,7 @@ def test_loop_cpu_pins_the_loop_thread_and_only_it(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_loop_cpu_unsupported_is_said_once_and_runs_unpinned(tmp_path: Path,
                                                              monkeypatch) -> None:
-    monkeypatch.setattr(svc.pacing, "usable_cpus", lambda: None)
+    monkeypatch.setattr(svc.scheduling, "usable_cpus", lambda: None)
     before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     seen = []
 
