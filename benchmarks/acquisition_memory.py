@@ -3,7 +3,7 @@
     python benchmarks/acquisition_memory.py                 # 200 trials of 2 s
     python benchmarks/acquisition_memory.py --trials 40 --cache-kb 0   # HDF5's default cache
 
-Feeds rig.acquisition.Acquisition (the class the acquisition process runs) 2 kHz rows of
+Feeds rig.loop.acquisition.Acquisition (the class the acquisition process runs) 2 kHz rows of
 the built-in simulated rig's width in 20 ms reads, the loop's 500 Hz records, and flushes
 every 0.24 s into a run file and its journal, as the process does; prints the process's
 resident memory (RSS) every ``--every`` trials, its growth from the first trial, and the
@@ -37,9 +37,11 @@ class _NoMessages:
 
 
 def main() -> int:
-    from rig import calrecords, config, journal, runfile
-    from rig.acquisition import Acquisition
+    from rig import config, runfile
     from rig.calibration import records as cal_records
+    from rig.loop import journal
+    from rig.loop.acquisition import Acquisition
+    from rig.sensors import table as sensor_table
     from rig.sim_backend.daq import row_width
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -67,7 +69,7 @@ def main() -> int:
     jw = journal.JournalWriter.create(path)
     acq = Acquisition(cfg, cal_records.lookup(cfg), writer, _NoMessages(), None, jw)
     width = row_width(cfg)
-    col = calrecords.column(cfg, calrecords.SAMPLE)
+    col = sensor_table.column(cfg, sensor_table.SAMPLE)
     rate = cfg.rates.acquisition_hz
     per_trial = int(args.trial_s * rate)
     read = int(0.02 * rate)
@@ -86,7 +88,7 @@ def main() -> int:
             acq.take(rows)
             if j % 12 == 11:
                 acq.handle(("commands", k, {c: rng.standard_normal(30)
-                                            for c in calrecords.COMMAND_UNITS}))
+                                            for c in sensor_table.COMMAND_UNITS}))
                 t0 = time.perf_counter()
                 acq.write_pending()
                 flush_s += time.perf_counter() - t0

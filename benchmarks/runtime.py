@@ -49,10 +49,13 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, config, pacing, runfile
-from rig.acquisition import Acquisition
+from rig import config, runfile
 from rig.calibration import records
+from rig.loop import scheduling
+from rig.loop.acquisition import Acquisition
+from rig.sensors import table as sensor_table
 from rig.services import run as svc
+from rig.sim_backend import clock
 
 DT = 0.002  # 500 Hz
 
@@ -62,11 +65,11 @@ def bare_loop(q: mp.Queue, go: Any, stop: Any, t_start: Any, offset_s: float, ma
     """A 500 Hz pacing loop doing no work (the VM's own stalls), in its own process, paced and
     scheduled as the run's loop is (sleep then spin, timer slack, the same real-time class, the
     same CPU), its ticks ``offset_s`` after the run's loop's ticks, until ``stop`` is set."""
-    pacing.set_timer_slack()
-    pinned = cpu is not None and pacing.pin_to_cpu(cpu) is not None
+    clock.set_timer_slack()
+    pinned = cpu is not None and scheduling.pin_to_cpu(cpu) is not None
     q.put("ready")
     go.wait()
-    rt = pacing.realtime_priority(priority)
+    rt = scheduling.realtime_priority(priority)
     t0 = t_start.value + offset_s
     n = int(max_s / DT)
     ticks = np.zeros(n, dtype=np.int64)
@@ -75,7 +78,7 @@ def bare_loop(q: mp.Queue, go: Any, stop: Any, t_start: Any, offset_s: float, ma
     i = max(0, int((time.perf_counter() - t0) / DT) + 2)  # the first tick still ahead
     k = 0
     while k < n and not stop.value:
-        now = pacing.sleep_until(t0 + i * DT)
+        now = clock.sleep_until(t0 + i * DT)
         behind = int((now - t0) / DT)
         if behind > i:  # as the run's loop counts them: ticks passed while it was held
             missed[k] = behind - i
@@ -84,7 +87,7 @@ def bare_loop(q: mp.Queue, go: Any, stop: Any, t_start: Any, offset_s: float, ma
         late[k] = now - (t0 + i * DT)
         k += 1
         i += 1
-    pacing.normal_priority()
+    scheduling.normal_priority()
     q.put((ticks[:k], late[:k], missed[:k], rt, pinned))
 
 
@@ -142,7 +145,7 @@ def loop_benchmark(seconds: float, tmp: Path, rigid: bool = False,
                     "  - {hold: 0.2}\n  - {ramp: 0.04, to: 0}\n  - {hold: 0.26}\n")
     trials = int(np.ceil(seconds / 1.0))
     if cpu is None:
-        cpu = max(pacing.usable_cpus() or {0})
+        cpu = max(scheduling.usable_cpus() or {0})
     # measure, do not abort: a late streak is reported in the figures instead
     loop: dict[str, Any] = {"rest_s": 0.3, "cpu": cpu}
     if priority is not None:
@@ -260,7 +263,7 @@ def acquisition_benchmark(tmp: Path, seconds: float = 5.0) -> None:
     """Store blocks as fast as possible through the acquisition's own write path."""
     cfg = config.builtin_sim()
     cals = records.lookup(cfg)
-    width = len(calrecords.raw_names(cfg))
+    width = len(sensor_table.raw_names(cfg))
     w = runfile.RunWriter(tmp / "acq.h5", "measured", {}, crash_safe=True)
 
     class Q:
@@ -306,9 +309,9 @@ def main() -> None:
     ap.add_argument("--offset-ms", type=float, default=-0.1,
                     help="the bare loop ticks this long after the rig loop (negative: before)")
     args = ap.parse_args()
-    cpus = pacing.usable_cpus()
+    cpus = scheduling.usable_cpus()
     if args.cpu is not None and cpus is not None and args.cpu not in cpus:
-        ap.error(f"--cpu {args.cpu}: this process may use CPUs {pacing.cpu_list(cpus)}")
+        ap.error(f"--cpu {args.cpu}: this process may use CPUs {scheduling.cpu_list(cpus)}")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         loop_benchmark(args.seconds, tmp, args.rigid, args.priority, args.second_bare,

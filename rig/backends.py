@@ -1,7 +1,8 @@
 """The one place that picks a backend by ``cfg.backend`` ("ni" or "sim") and the only
 module naming them: the loop side, the acquisition side and the calibration bench. A
 new backend is one package with the same inner layout (``daq``, ``bench``) and one
-branch in each function here. NI never falls back to simulation."""
+branch in each function here (and the drive's link: a serial port, or the simulated drive
+on a pseudo-terminal). NI never falls back to simulation."""
 
 from __future__ import annotations
 
@@ -32,6 +33,10 @@ def open_daq(config: RigConfig, *, lockstep: bool = False,
     if config.backend == "sim":
         from rig.sim_backend.daq import SimDaq
 
+        if on_line is not None:  # (seconds of silence otherwise: say what the start is doing)
+            on_line("building the simulated rig's action model ..." if lockstep
+                    or not config.sim.realtime
+                    else "starting the simulated rig's process (it builds the action model) ...")
         return SimDaq(config, lockstep=lockstep, on_line=on_line)
     raise _unknown(config.backend)
 
@@ -61,3 +66,36 @@ def open_bench(cfg: RigConfig) -> Bench:
 
         return NiBench(cfg)
     raise _unknown(cfg.backend)
+
+
+def open_drive_port(cfg: RigConfig, daq: Daq) -> tuple[str | None, Any]:
+    """The drive's serial port for ``rig.loop.drive.Drive``: ``(None, None)`` for the
+    configured port; with ``drive.port: sim``, the simulated drive on a pseudo-terminal
+    (the simulated rig only) as ``(its port, the simulated drive)``, closed by the caller."""
+    if cfg.drive.port != "sim":
+        return None, None
+    if cfg.backend != "sim":
+        raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+    from rig.sim_backend.daq import SimDaq
+    from rig.sim_backend.drive_pty import SimDrive
+
+    assert isinstance(daq, SimDaq)
+    sim_drive = SimDrive(cfg.drive, daq.drive_state)
+    return sim_drive.port, sim_drive
+
+
+def check_drive_port(cfg: RigConfig) -> None:
+    """Refuse, before anything starts, a drive link this backend cannot open."""
+    if cfg.backend != "sim" and cfg.drive.port == "sim":
+        raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+
+
+def reader_calibration(cfg: RigConfig, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """What the acquisition side calibrates before a run, for the run's metadata and
+    ``open_reader``'s spec: NI nulls and shunt-calibrates its fresh bridge channels
+    (``{"bridge_cal": ...}``); the simulated rig, nothing."""
+    if cfg.backend == "ni":
+        from rig.ni_backend.daq import bridge_calibration
+
+        return {"bridge_cal": bridge_calibration(cfg, records)}
+    return {}

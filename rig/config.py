@@ -20,13 +20,13 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rig.errors import InputError
-from rig.params import load_yaml_file
+from rig.params import THESIS_TIME_UNIT_S, load_yaml_file
 
 # Strict numbers (no bool, no numeric text) that must be finite: ``control_hz: true`` or
 # ``buffer_s: .inf`` are refused rather than read as 1 Hz or an endless buffer.
 _STRICT_FINITE = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-# The run's own channel names (rig/acquisition.py, rig/calrecords.py, rig/runfile.py): an
+# The run's own channel names (rig/loop/acquisition.py, rig/sensors/table.py, rig/runfile.py): an
 # encoder channel named like one of them would replace the load-cell force, the sample
 # counter or the time base in the run file and blind the analysis and the safety checks.
 RESERVED_CHANNELS = frozenset({
@@ -426,7 +426,7 @@ class Sim(_Strict):
     drive_model: Literal["single", "asymmetric", "step_size"] = Field(
         "single", description="Appendix D drive model (rig.sim_backend.drive_model): single, "
                               "asymmetric (rise/fall models) or step_size (slew-limited)")
-    process_time_unit_s: float = Field(0.002, gt=0, le=1,
+    process_time_unit_s: float = Field(THESIS_TIME_UNIT_S, gt=0, le=1,
                                        description="unit of Tw and Tp3 (Appendix D)")
     load_cell_noise_n: float = Field(0.22, ge=0, le=100,
                                      description="1 sigma; 3 sigma = the 0.67 N spec")

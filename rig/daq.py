@@ -10,7 +10,7 @@ missing, ``rig.backends.open_daq`` raises.
 Loop side (the run's process):  zero_output() [then the drive is enabled] -> arm() ->
 wait_for_tick() -> write_volts() -> write_lateness(tick) ...
 Acquisition side (its own process): open_reader(daq.reader_spec()) -> start()
--> read() blocks of rows in the columns of ``rig.calrecords.raw_names`` (sample, then
+-> read() blocks of rows in the columns of ``rig.sensors.table.raw_names`` (sample, then
 one per sensor of the sensor table).
 Calibration bench (``Bench``): apply_mass, read_bridge, null_offset, shunt,
 drive_static, key_travel (docs/calibration.md).
@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from rig.config import RigConfig
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 
 
-class DaqFault(RuntimeError):
+class DaqFault(RigError, RuntimeError):
     """The cards reported a condition that must stop the run (overflow, missing hardware...)."""
 
 
@@ -107,7 +107,7 @@ class Reader(ABC):
         """Make the latest load-cell sample visible to the loop (NI); no-op by default."""
 
     def safe_stop(self) -> None:
-        """The loop's process died: put the drive demand at 0 V from here (rig.supervisor)."""
+        """The loop's process died: put the drive demand at 0 V from here (rig.loop.supervisor)."""
         raise NotImplementedError(f"{type(self).__name__} cannot zero the drive output")
 
     def release_orphaned(self) -> None:  # noqa: B027 - optional
@@ -168,10 +168,6 @@ class Bench(ABC):
     @abstractmethod
     def key_travel(self, force_n: np.ndarray) -> dict[str, np.ndarray]:
         """Press the key with ``force_n`` (N, one per control period); counts per encoder."""
-
-    def truth(self) -> dict[str, dict[str, float]]:
-        """True sensor parameters (simulated bench only)."""
-        raise RuntimeError("only the simulated bench knows its sensors' true values")
 
     def close(self) -> None:  # noqa: B027 - nothing to release by default
         """Release cards and tasks."""

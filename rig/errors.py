@@ -3,6 +3,17 @@
     RigError            root of every error rig raises on purpose
       InputError        the user's bad input (a file, a field, an option): the CLI prints
                         one line naming the file and field and exits 2; nothing is written
+        MissingCalibration   a real-hardware run without its calibration record
+                             (rig.calibration.records)
+      DriveError        the drive refused a command or did not answer (rig.loop.drive)
+      DaqFault          the cards must stop the run: overflow, missing hardware (rig.daq)
+      DiskFull          too little space to write the next block (rig.loop.acquisition;
+                        also an OSError)
+      BufferOverflow    the simulated cards' buffer overwrote unread samples
+                        (rig.sim_backend.fifo)
+      RunStopped        a stop signal while the run was starting (rig.services.run)
+
+Any other exception is a failure inside rig or a library (the CLI: one line, exit 1).
 
 ``InputError`` is also a ``ValueError`` so callers that catch ``ValueError`` keep working
 while the code moves over to it. Raise it with the file and field in the message::

@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from rig.bridge import add_ni_bridge_channel, ni_null_and_shunt
 from rig.config import LoadCell
 
 
@@ -28,16 +27,3 @@ def to_newtons(ratio: np.ndarray | float, sensitivity: float, offset: float) -> 
 def to_ratio(force_n: np.ndarray | float, sensitivity: float, offset: float) -> Any:
     """Force on the key top (N) -> bridge ratio (V/V): the inverse of ``to_newtons``."""
     return offset + sensitivity * np.asarray(force_n, dtype=float)
-
-
-def add_ni_channel(task: Any, cfg: LoadCell, name: str = "load_cell") -> None:
-    """Add the load cell to an nidaqmx task as a full-bridge V/V channel."""
-    add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
-                          False, cfg.excitation_volts, cfg.bridge_resistance_ohm, cfg.lowpass_hz)
-
-
-def ni_calibrate(task: Any, cfg: LoadCell, name: str = "load_cell",
-                 shunt_resistor_ohm: float | None = None) -> float | None:
-    """Offset nulling, then (with a resistor) shunt calibration on the SCXI-1520 (key
-    unloaded); the driver's gain adjustment, if any."""
-    return ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.bridge_resistance_ohm)

@@ -15,6 +15,7 @@ import numpy as np
 
 from rig.config import DriveOutput, DriveScaling, Limits
 from rig.errors import InputError
+from rig.params import THESIS_TIME_UNIT_S, Parameters
 from rig.profiles import Profile
 
 
@@ -86,6 +87,15 @@ def feedforward(profile: Profile, t: float, advance_s: float) -> float:
 def process_coefficients(Tw: float, zeta: float, Tp3: float) -> tuple[float, float, float]:
     """a3, a2, a1 of Eq. D.1, a3 y''' + a2 y'' + a1 y' + y = K u (Tw, Tp3 in s)."""
     return (Tw * Tw * Tp3, Tw * Tw + 2 * zeta * Tw * Tp3, 2 * zeta * Tw + Tp3)
+
+
+def thesis_process(params: Parameters, name: str = "process_model_all",
+                   time_unit_s: float = THESIS_TIME_UNIT_S) -> tuple[float, float, float, float]:
+    """(K, Tw, zeta, Tp3) of Eq. D.1, Tw and Tp3 in s, from the parameters'
+    ``actuator.<name>`` (Tw, Tp3 in ``time_unit_s``, the thesis's 2 ms loop periods)."""
+    m = params.get(f"actuator.{name}")
+    return (float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
+            float(m["Tp3"]) * time_unit_s)
 
 
 def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

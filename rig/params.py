@@ -25,6 +25,11 @@ import yaml
 
 from rig.errors import InputError
 
+# The thesis's time unit of the drive model's Tw and Tp3 (Eq. D.1, Appendix D: the 500 Hz
+# loop's 2 ms periods): the simulated drive's (rig.motor_torque.thesis_process) and the rig
+# config's default (sim.process_time_unit_s); rig.control.plant still keeps a copy.
+THESIS_TIME_UNIT_S = 0.002
+
 _DATA = resources.files("rig") / "data"
 # libyaml's safe loader where PyYAML was built with it (the wheels are): the same
 # documents, parsed about 10x faster than the pure-Python one (the package's two

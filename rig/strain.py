@@ -12,8 +12,6 @@ from typing import Any
 
 import numpy as np
 
-from rig.bridge import add_ni_bridge_channel, ni_null_and_shunt
-from rig.config import StrainGauge
 from rig.errors import InputError
 
 
@@ -29,19 +27,6 @@ def to_ratio(strain: np.ndarray | float, gage_factor: float, offset: float,
     """Strain (m/m) -> bridge ratio (V/V): the inverse of ``to_strain``."""
     e = np.asarray(strain, dtype=float) / (1.0 + lead_wire_ohm / gauge_ohm)
     return offset - gage_factor * e / (4.0 + 2.0 * gage_factor * e)
-
-
-def add_ni_channel(task: Any, cfg: StrainGauge, name: str = "strain_gauge") -> None:
-    """Add the gauge to an nidaqmx task as a quarter-bridge V/V channel (350 ohm)."""
-    add_ni_bridge_channel(task, cfg.physical_channel, name, cfg.input_range_mv_per_v,
-                          True, cfg.excitation_volts, cfg.nominal_resistance_ohm, cfg.lowpass_hz)
-
-
-def ni_calibrate(task: Any, cfg: StrainGauge, name: str = "strain_gauge",
-                 shunt_resistor_ohm: float | None = None) -> float | None:
-    """Offset nulling, then (with the calibration record's resistor) shunt calibration;
-    bridge_resistance is the gauge's (NI defaults to 120). The driver's gain adjustment."""
-    return ni_null_and_shunt(task, name, shunt_resistor_ohm, cfg.nominal_resistance_ohm)
 
 
 def shunt_equivalent_strain(gauge_ohm: float, gage_factor: float, shunt_ohm: float) -> float:

@@ -1,7 +1,7 @@
 """docs/architecture.md's "Add a sensor", followed literally (issue 14).
 
 The guide's example (a thermometer) is added the way the guide says, to the sensor table of
-a scratch copy of the package (rig/calrecords.py copied and edited, every other file
+a scratch copy of the package (rig/sensors/table.py copied and edited, every other file
 linked, so the compiled model's cache is shared), and `rig run` presses the key on the
 simulated rig through the real processes (the acquisition process imports the copy too).
 The run file must hold the new channel, raw and calibrated, with its units and
@@ -24,8 +24,9 @@ import pytest
 import yaml
 from ni_fake import FakeInterpreter  # nidaqmx's own classes, the DAQmx calls recorded
 
-from rig import calrecords, config, runfile
+from rig import config, runfile
 from rig.ni_backend.daq import NiReader
+from rig.sensors import table as sensor_table
 
 ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "architecture.md"
@@ -41,14 +42,14 @@ def guide() -> tuple[str, str]:
     return section, blocks[0]
 
 
-def edited_calrecords() -> str:
-    """rig/calrecords.py with the guide's block: its function above the table, the table's
+def edited_table_source() -> str:
+    """rig/sensors/table.py with the guide's block: its function above the table, the table's
     line as the guide shows it."""
     section, block = guide()
-    assert "rig/calrecords.py" in section and "SENSOR_TABLE" in section
-    src = (ROOT / "rig" / "calrecords.py").read_text()
+    assert "rig/sensors/table.py" in section and "SENSOR_TABLE" in section
+    src = (ROOT / "rig" / "sensors" / "table.py").read_text()
     old, new = TABLE_LINE.search(src), TABLE_LINE.search(block)
-    assert old and new, "rig/calrecords.py and the guide both show the SENSOR_TABLE line"
+    assert old and new, "rig/sensors/table.py and the guide both show the SENSOR_TABLE line"
     name = re.search(r"^def (\w+)\(", block, re.M)
     assert name, "the guide's block defines the new sensor's function"
     # the guide's table line is the code's with the new sensor listed last
@@ -64,16 +65,20 @@ def shadow(tmp_path_factory) -> Path:
     pkg = root / "rig"
     pkg.mkdir()
     for entry in (ROOT / "rig").iterdir():
-        if entry.name not in ("calrecords.py", "__pycache__"):
+        if entry.name not in ("sensors", "__pycache__"):
             (pkg / entry.name).symlink_to(entry)
-    (pkg / "calrecords.py").write_text(edited_calrecords())
+    (pkg / "sensors").mkdir()
+    for entry in (ROOT / "rig" / "sensors").iterdir():
+        if entry.name not in ("table.py", "__pycache__"):
+            (pkg / "sensors" / entry.name).symlink_to(entry)
+    (pkg / "sensors" / "table.py").write_text(edited_table_source())
     return root
 
 
 def edited_table(shadow: Path) -> ModuleType:
-    """The edited rig/calrecords.py as a module of its own (importing this rig)."""
-    spec = importlib.util.spec_from_file_location("edited_calrecords",
-                                                  shadow / "rig" / "calrecords.py")
+    """The edited rig/sensors/table.py as a module of its own (importing this rig)."""
+    spec = importlib.util.spec_from_file_location("edited_sensor_table",
+                                                  shadow / "rig" / "sensors" / "table.py")
     assert spec and spec.loader
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # for its dataclasses
@@ -96,7 +101,7 @@ def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
     assert proc.returncode == 0, proc.stdout + proc.stderr
     cfg = config.load(rig_yaml)
     new = edited_table(shadow).sensors(cfg)[-1]
-    assert new.name not in {s.name for s in calrecords.sensors(cfg)}  # not in the real table
+    assert new.name not in {s.name for s in sensor_table.sensors(cfg)}  # not in the real table
 
     run = runfile.read(out)
     assert run.status == "complete"
@@ -115,13 +120,13 @@ def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
 
 def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) -> None:
     edited = edited_table(shadow)
-    monkeypatch.setattr(calrecords, "SENSOR_TABLE", edited.SENSOR_TABLE)
+    monkeypatch.setattr(sensor_table, "SENSOR_TABLE", edited.SENSOR_TABLE)
     _, block = guide()
     physical = re.search(r'add_ai_voltage_chan\(\s*"([^"]+)"', block)
     assert physical, "the guide's sensor is an analog input of the bridges' task"
     cfg = config.from_mapping({"backend": "ni", "drive": {"port": "/dev/ttyS0"}})
-    names = calrecords.raw_names(cfg)
-    new = calrecords.sensors(cfg)[-1]
+    names = sensor_table.raw_names(cfg)
+    new = sensor_table.sensors(cfg)[-1]
     assert names[-1] == new.raw
     fake = FakeInterpreter()
     with fake.installed():
@@ -152,5 +157,5 @@ def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) 
     assert list(rows[:, names.index("strain_ratio")]) == [2e-5, 2e-5]
     for k, v in counts.items():
         assert list(rows[:, names.index(f"{k}_counts")]) == v
-    out = calrecords.convert(rows, cfg, calrecords.nominal(cfg))
+    out = sensor_table.convert(rows, cfg, sensor_table.nominal(cfg))
     assert out[new.channel] == pytest.approx([21.5, 21.5])

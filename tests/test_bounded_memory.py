@@ -45,7 +45,7 @@ class _Q:
 
 
 def test_loop_records_keep_only_the_last_rows_once_sent() -> None:
-    from rig.recovery import LoopRecords
+    from rig.loop.recovery import LoopRecords
 
     rec = LoopRecords(trials=2, total=300, keep=40)
     q = _Q()

@@ -15,7 +15,7 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import calrecords, config, profiles, runfile
+from rig import config, profiles, runfile
 from rig.calibration import encoders, motor, records
 from rig.calibration import loadcell as lc
 from rig.calibration import records as cal_records
@@ -24,6 +24,7 @@ from rig.calibration.settings import CalibrationSettings
 from rig.cli import app
 from rig.daq import DaqFault
 from rig.ni_backend.bench import NiBench
+from rig.sensors import table as sensor_table
 from rig.services import calibrate as svc
 from rig.sim_backend.bench import SimBench
 
@@ -73,7 +74,7 @@ def test_loadcell_recovers_true_sensitivity_and_offset(tmp_path: Path, seed: int
     assert abs(r.fit["sensitivity"] - truth["sensitivity"]) <= u["sensitivity_v_per_v_per_n"]
     assert abs(r.fit["offset"] - truth["offset"]) <= u["offset_v_per_v"]
     # the truth differs from nominal by far more than the uncertainty: the test can fail
-    nom = calrecords.nominal(cfg)["load_cell"].sensitivity
+    nom = sensor_table.nominal(cfg)["load_cell"].sensitivity
     assert abs(nom - truth["sensitivity"]) > 3 * u["sensitivity_v_per_v_per_n"]
     assert r.figures["hysteresis_pct_fs"] < 0.5 and r.figures["nonlinearity_pct_fs"] < 0.5
 

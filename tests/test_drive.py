@@ -7,7 +7,7 @@ import time
 import pytest
 
 from rig import config
-from rig.drive import Drive, DriveError, DriveMonitor
+from rig.loop.drive import Drive, DriveError, DriveMonitor
 from rig.sim_backend.drive_pty import SimDrive
 
 

@@ -36,6 +36,7 @@ from nidaqmx.constants import (
 from rig import backends, config
 from rig.daq import DaqFault
 from rig.errors import InputError
+from rig.ni_backend.daq import bridge_calibration
 from rig.services import run as run_service
 
 ARM_TRIG_TYPE = 0x1414
@@ -174,7 +175,7 @@ def test_close_falls_back_to_a_fresh_task_when_the_loop_task_fails(fake) -> None
 
 
 def test_the_supervisor_zeroes_the_drive_output_with_a_new_task(fake, rig) -> None:
-    from rig.supervisor import make_safe
+    from rig.loop.supervisor import make_safe
 
     rig.start()
     rig.daq.wait_for_tick()
@@ -272,7 +273,7 @@ def test_the_run_nulls_and_shunt_calibrates_the_strain_bridge_with_the_record_re
     cfg = ni_config()
     records = [{"sensor": "strain_gauge", "fit": {"shunt_resistor_ohm": 59880.0}},
                {"sensor": "load_cell", "fit": {"sensitivity": 1.8e-5}}]
-    cal = run_service.bridge_calibration(cfg, records)
+    cal = bridge_calibration(cfg, records)
     r = Rig(cfg, bridge_cal=cal)
     r.close()
     nulls = fake.of("perform_bridge_offset_nulling_cal_ex", "rig-bridges")
@@ -288,10 +289,10 @@ def test_the_run_nulls_and_shunt_calibrates_the_strain_bridge_with_the_record_re
     assert seq.index("perform_bridge_offset_nulling_cal_ex") < \
         seq.index("perform_bridge_shunt_cal_ex")
     # no strain record: the config's resistor
-    assert run_service.bridge_calibration(cfg, [])["strain_gauge"]["shunt_resistor_ohm"] == \
+    assert bridge_calibration(cfg, [])["strain_gauge"]["shunt_resistor_ohm"] == \
         cfg.calibration.strain_gauge.shunt_resistor_ohm
     off = ni_config(channels={"strain_gauge": {"enabled": False}})
-    assert run_service.bridge_calibration(off, records)["strain_gauge"]["null"] is False
+    assert bridge_calibration(off, records)["strain_gauge"]["null"] is False
 
 
 def test_buffer_full_is_judged_on_the_buffer_daqmx_allocated(fake, rig) -> None:

@@ -1,5 +1,5 @@
 """A full disk and killed writers lose nothing that was flushed (issue 37): the run file's
-journal (rig.journal), ENOSPC injected at random writes of a 3-trial simulated run, SIGKILL
+journal (rig.loop.journal), ENOSPC injected at random writes of a 3-trial simulated run, SIGKILL
 of every process of a run, and a real tmpfs that fills at once."""
 
 from __future__ import annotations
@@ -19,10 +19,11 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import config, journal, runfile
+from rig import config, runfile
 from rig.cli import app
 from rig.errors import InputError
-from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
+from rig.loop import journal
+from rig.sim_backend.rig_process import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"
 RIG = {"name": "enospc", "backend": "sim", "drive": {"port": "sim", "poll_period_s": 0.01},
@@ -317,7 +318,7 @@ def test_a_tmpfs_filled_at_once_mid_run(tmp_path: Path, tiny_fs: Path) -> None:
 
 _ECHO_SCRIPT = r"""
 import sys, h5py, numpy as np
-from rig import journal
+from rig.loop import journal
 if sys.argv[2] == "quiet":
     journal.DiskFullEchoes().install()
 f = h5py.File(sys.argv[1], "w", libver="latest")
@@ -346,7 +347,7 @@ def test_hdf5_frees_after_a_full_disk_do_not_reach_stderr(tmp_path: Path, tmpfs,
                                                          mode: str) -> None:
     """After ENOSPC h5py's objects fail again as they are freed (an "Exception ignored"
     traceback each, seen on stderr of `rig run` when a tmpfs filled at once): the
-    acquisition counts them instead (journal.DiskFullEchoes); other errors still print."""
+    acquisition counts them instead (rig.loop.journal.DiskFullEchoes); other errors still print."""
     small = tmpfs("size=2m")
     script = tmp_path / "echo.py"
     script.write_text(_ECHO_SCRIPT)

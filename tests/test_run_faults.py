@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rig.sim_backend.plant import DRIVE_LOG_ENV, read_drive_log
+from rig.sim_backend.rig_process import DRIVE_LOG_ENV, read_drive_log
 
 pytestmark = [pytest.mark.skipif(not Path("/proc/self/maps").exists(),
                                  reason="the leftover checks read /proc (Linux)"),

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import calrecords, config, profiles, runfile
+from rig import config, profiles, runfile
 from rig.cli import app
 from rig.model.action import ActionModel
+from rig.sensors import table as sensor_table
 from rig.services import run as svc
 
 pytestmark = pytest.mark.realtime  # what these tests cost (pyproject.toml)
@@ -132,7 +133,7 @@ def test_measured_angles_agree_with_offline_simulation(forte_run) -> None:
     noisy = _offline(tk, force(sens, off, np.random.default_rng(1).normal(0, 0.22, tk.size)),
                      names, model)
     cfg = config.from_mapping(config.yaml.safe_load(run.metadata["rig_config"]))
-    nominal = _offline(tk, force(calrecords.nominal(cfg)["load_cell"].sensitivity, 0.0), names,
+    nominal = _offline(tk, force(sensor_table.nominal(cfg)["load_cell"].sensitivity, 0.0), names,
                        model)
     fails_nominal = []
     for name in names:
@@ -329,7 +330,7 @@ def test_loop_cpu_pins_the_loop_thread_and_only_it(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_loop_cpu_unsupported_is_said_once_and_runs_unpinned(tmp_path: Path,
                                                              monkeypatch) -> None:
-    monkeypatch.setattr(svc.pacing, "usable_cpus", lambda: None)
+    monkeypatch.setattr(svc.scheduling, "usable_cpus", lambda: None)
     before = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     seen = []
 

@@ -9,9 +9,9 @@ import time
 from typing import Any
 
 from rig import config
+from rig.loop.supervisor import ControllerWatch, make_safe
 from rig.sim_backend.drive_pty import SimDrive
 from rig.sim_backend.drive_state import DriveState
-from rig.supervisor import ControllerWatch, make_safe
 
 
 def test_watch_sees_a_sigkilled_process_at_once() -> None:

@@ -23,15 +23,16 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, profiles, runfile
 from rig import config as rig_config
+from rig import profiles, runfile
 from rig.config import RigConfig
 from rig.errors import InputError
 from rig.model.action import ActionModel, SimResult
+from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet
 
-COMMAND_UNITS = {k: calrecords.COMMAND_UNITS[k] for k in ("time", "demand")}
+COMMAND_UNITS = {k: sensor_table.COMMAND_UNITS[k] for k in ("time", "demand")}
 HARDWARE_FILTER_HZ = 100.0  # the SCXI-1520's filter
 
 
@@ -101,7 +102,7 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
     true_ch = {**res.channels, "force": np.interp(res.time, ts, force)}
     ch: dict[str, np.ndarray] = {"time": res.time.copy()}
     units = {"time": "s"}
-    for s in calrecords.sensors(cfg):
+    for s in sensor_table.sensors(cfg):
         true = s.sim.truth(true_ch)
         if true is None:  # the truth lacks it (a rigid shank has no strain)
             continue
@@ -137,7 +138,7 @@ def synth(truth: ActionModel, profile_list: Sequence[profiles.Profile], out: Pat
     if record_truth:
         d = truth.describe()
         meta["truth"] = {"source": truth_source, "effects": d["effects"]}
-    docs = calrecords.channel_docs(cfg)
+    docs = sensor_table.channel_docs(cfg)
     with runfile.RunWriter(out, "synthetic", meta) as w:
         k = 0
         for prof in profile_list:
@@ -146,7 +147,7 @@ def synth(truth: ActionModel, profile_list: Sequence[profiles.Profile], out: Pat
                                  noise_scale)
                 tw = w.trial()
                 tw.append("channels", st.channels, st.units, docs)
-                tw.append("commands", st.commands, COMMAND_UNITS, calrecords.COMMAND_DOCS)
+                tw.append("commands", st.commands, COMMAND_UNITS, sensor_table.COMMAND_DOCS)
                 tw.set_attrs(status="complete", t0=0.0, profile=prof.name)
                 made.append(st)
                 k += 1

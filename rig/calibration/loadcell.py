@@ -5,8 +5,8 @@ then unloading (more cycles allowed; a rise after unloading starts a new
 cycle). At each point the bridge is averaged for ``average_s`` after
 ``settle_s``. The reference force is m g. Fitted: F = c0 + c1 x (x in mV/V;
 c1 in N per mV/V) or a polynomial in x on request. Stored for the runtime,
-in the calrecords conventions: sensitivity = 1e-3 / c1 (V/V)/N and offset =
--c0 / c1 * 1e-3 V/V (from the straight line, also for a polynomial fit).
+in the sensor table's conventions (rig.sensors.table): sensitivity = 1e-3 / c1
+(V/V)/N and offset = -c0 / c1 * 1e-3 V/V (from the straight line, also for a polynomial fit).
 
 Spec figures (% of full scale, against the best straight line): hysteresis
 = largest unloading-minus-loading difference at one mass; non-linearity =

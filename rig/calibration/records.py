@@ -3,8 +3,8 @@
 A record holds: sensor, identifier (serial or physical channel), created (UTC),
 operator, the rig it was made on (backend, name, simulated seed), software
 version and git commit, the raw points, the fit (``sensitivity`` and
-``offset`` in the calrecords conventions, units stated), the uncertainty
-budget (k = 2), the checks, and ``content_hash`` = sha256 of the canonical
+``offset`` in the sensor table's conventions (rig.sensors.table), units stated), the
+uncertainty budget (k = 2), the checks, and ``content_hash`` = sha256 of the canonical
 JSON of everything else. A file whose hash does not match, or that was made
 on another backend (or another simulated seed), is not valid and is skipped.
 
@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from rig.calibration.settings import records_folder, settings_for
-from rig.calrecords import CalRecord, nominal
 from rig.config import RigConfig
 from rig.errors import InputError
+from rig.sensors.table import CalRecord, nominal
 from rig.version import __version__
 
 FORMAT = "rig-calibration"
@@ -35,8 +35,9 @@ FORMAT_VERSION = 1
 SENSORS = ("load_cell", "strain_gauge", "motor", "encoders")
 
 
-class MissingCalibration(RuntimeError):
-    """A real-hardware run needs a calibration record that does not exist."""
+class MissingCalibration(InputError, RuntimeError):
+    """A real-hardware run needs a calibration record that does not exist (the user's to
+    make with `rig calibrate`: one line, exit 2)."""
 
 
 class CalibrationAgeWarning(UserWarning):
@@ -163,7 +164,8 @@ def _source(rec: dict[str, Any], path: Path) -> str:
 
 
 def to_calrecord(rec: dict[str, Any], path: Path) -> CalRecord:
-    """The run-time view of a stored record (sensitivity/offset in calrecords conventions)."""
+    """The run-time view of a stored record (sensitivity/offset in the sensor table's
+    conventions)."""
     fit = rec["fit"]
     units = rec["units"]
     return CalRecord(rec["sensor"], False, float(fit["sensitivity"]), float(fit["offset"]),

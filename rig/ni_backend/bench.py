@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from rig import strain as strain_mod
 from rig.config import RigConfig
 from rig.daq import Bench, Live, check_bridge
+from rig.ni_backend import channels
 
 
 class NiBench(Bench):
@@ -21,16 +21,15 @@ class NiBench(Bench):
         self._tasks: dict[str, Any] = {}
 
     def _task(self, sensor: str) -> Any:
-        from rig import loadcell
         from rig.ni_backend.daq import new_task
 
         check_bridge(sensor)
         if sensor not in self._tasks:
             task = new_task(f"rig-cal-{sensor}")
             if sensor == "load_cell":
-                loadcell.add_ni_channel(task, self.cfg.channels.load_cell, sensor)
+                channels.add_load_cell(task, self.cfg.channels.load_cell, sensor)
             else:
-                strain_mod.add_ni_channel(task, self.cfg.channels.strain_gauge, sensor)
+                channels.add_strain_gauge(task, self.cfg.channels.strain_gauge, sensor)
             self._tasks[sensor] = task
         return self._tasks[sensor]
 
@@ -160,14 +159,13 @@ class NiBench(Bench):
         the relation between encoders matter here)."""
         import time
 
-        from rig import encoders as enc_mod
         from rig.ni_backend.daq import new_task
 
         tasks = {}
         try:
             for name, enc in self.cfg.channels.encoders.items():
                 t = new_task(f"rig-check-{name}")
-                enc_mod.add_ni_channel(t, enc, name)
+                channels.add_encoder(t, enc, name)
                 t.start()
                 tasks[name] = t
             counts: dict[str, list[float]] = {n: [] for n in tasks}

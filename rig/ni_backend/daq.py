@@ -26,7 +26,7 @@ service enables the drive; a failed 0 V write (``write_volts(0)``, ``close``) fa
 back to a fresh task on the same channel.
 
 Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): the sensors
-of ``rig.calrecords.sensors``, each set up by its own ``ni_channel``: one
+of ``rig.sensors.table.sensors``, each set up by its own ``ni_channel``: one
 continuous AI task with the analog ones (the load-cell and strain bridges, V/V,
 the SCXI-1520's lowpass set from the config) at 2 kHz, and one counter task per
 counter (the encoders: ticks, x4) clocked from the AI sample clock; counters start
@@ -56,10 +56,11 @@ from nidaqmx.constants import (
 )
 from nidaqmx.error_codes import DAQmxErrors
 
-from rig import calrecords, loadcell, strain
 from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
+from rig.ni_backend import channels
+from rig.sensors import table as sensor_table
 
 # the DAQmx errors that mean samples were lost (buffer or FIFO overflow, counter overrun)
 OVERFLOW_ERRORS = frozenset({
@@ -288,14 +289,14 @@ class NiReader(Reader):
         buf = int(cfg.acquisition.buffer_s * rate)
         self.fb = shared_memory.SharedMemory(name=spec["feedback"]) if spec.get("feedback") \
             else None
-        self.names = calrecords.raw_names(cfg)
-        table = calrecords.sensors(cfg)
+        self.names = sensor_table.raw_names(cfg)
+        table = sensor_table.sensors(cfg)
         self.ai = new_task("rig-bridges")
         self.ai_names = [s.raw for s in table if not s.ni_counter]
         self.ai_sensors = [s.name for s in table if not s.ni_counter]  # DAQmx channel names
         for s in table:
             if not s.ni_counter:
-                s.ni_channel(self.ai)
+                channels.set_up(self.ai, s)
         self.ai.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
                                            samps_per_chan=buf)
         self.ai.in_stream.overwrite = OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES
@@ -307,7 +308,7 @@ class NiReader(Reader):
             if not s.ni_counter:
                 continue
             task = new_task(f"rig-encoder-{s.name}")
-            s.ni_channel(task)
+            channels.set_up(task, s)
             task.timing.cfg_samp_clk_timing(rate, source=ch.ai_sample_clock,
                                             sample_mode=AcquisitionType.CONTINUOUS,
                                             samps_per_chan=buf)
@@ -332,9 +333,9 @@ class NiReader(Reader):
             if sensor not in self.ai_sensors or not how.get("null"):
                 continue
             rs = how.get("shunt_resistor_ohm")
-            gain = loadcell.ni_calibrate(self.ai, ch.load_cell, sensor, rs) \
+            gain = channels.calibrate_load_cell(self.ai, ch.load_cell, sensor, rs) \
                 if sensor == "load_cell" else \
-                strain.ni_calibrate(self.ai, ch.strain_gauge, sensor, rs)
+                channels.calibrate_strain_gauge(self.ai, ch.strain_gauge, sensor, rs)
             self.shunt_gain[sensor] = gain
             if gain is not None:
                 self.ai.ai_channels[sensor].ai_bridge_shunt_cal_gain_adjust = 1.0
@@ -378,7 +379,7 @@ class NiReader(Reader):
                                f"{_error_name(exc.error_code)}): samples were lost") from None
             raise DaqFault(f"acquisition read failed (DAQmx {_error_name(exc.error_code)}): "
                            f"{exc}") from None
-        cols = {calrecords.SAMPLE: self.count + np.arange(n, dtype=float),
+        cols = {sensor_table.SAMPLE: self.count + np.arange(n, dtype=float),
                 **dict(zip(self.ai_names, ai, strict=True)),
                 **dict(zip(self.ci_names, counts, strict=True))}
         self.count += n
@@ -415,3 +416,18 @@ class NiReader(Reader):
             self.fb.close()
         if first is not None:
             raise first
+
+
+def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
+    """How the run's fresh bridge channels are calibrated before the run (NI), as their
+    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
+    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
+    calibration reads its offset with masses, is left as calibrated."""
+    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
+    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
+    if rs is None:
+        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
+    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
+            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
+                             "shunt_resistor_ohm": float(rs),
+                             "from": "calibration record" if rec else "config"}}

@@ -17,6 +17,7 @@ from rig.calibration import records
 from rig.calibration.settings import operator_name, records_folder, settings_for
 from rig.config import RigConfig
 from rig.daq import Bench
+from rig.errors import InputError
 
 Live = Callable[[float], None] | None
 
@@ -38,6 +39,34 @@ def loadcell_points(cfg: RigConfig, bench: Bench, masses: Sequence[float],
         else:
             out.append((float(r), float("nan"), 1, abs(float(r))))
     return lc.make_points(list(masses), out)
+
+
+def loadcell_prompted(cfg: RigConfig, bench: Bench, ask: Callable[[int], str],
+                      say: Callable[[str], None], live: Live = None,
+                      refused: Callable[[ValueError], None] | None = None) -> list[lc.LoadPoint]:
+    """The bench loop of an interactive load-cell calibration: ``ask(k)`` the k-th mass
+    (kg; a blank answer ends), measure it, ``say`` its reading; a mass that cannot be read,
+    or the previous one again, is ``refused`` and asked again."""
+    s = settings_for(cfg).load_cell
+    masses: list[float] = []
+    readings: list[float | None] = []
+    while True:
+        text = ask(len(masses) + 1).strip()
+        if not text:
+            break
+        try:
+            m = lc.parse_mass(text, f"points[{len(masses) + 1}] mass")
+            if masses and m == masses[-1]:
+                raise InputError(f"points[{len(masses) + 1}] mass: same as the previous point")
+        except ValueError as exc:
+            if refused is not None:
+                refused(exc)
+            continue
+        r = lc.measure(bench, m, s, live)
+        masses.append(m)
+        readings.append(r[0])
+        say(f"  {m:g} kg: {r[0] * 1e3:+.5f} mV/V (sd {r[1] * 1e3:.5f}, {r[2]} samples)")
+    return loadcell_points(cfg, bench, masses, readings)
 
 
 def save_loadcell(cfg: RigConfig, result: lc.LoadCellResult, *, operator: str | None = None,

@@ -3,7 +3,7 @@
     report = run(Path("profiles/forte.yaml"), cfg, trials=3, on_line=print)
 
 The run's process holds the 500 Hz torque loop; a separate acquisition
-process (rig.acquisition) owns the run file and streams the 2 kHz channels.
+process (rig.loop.acquisition) owns the run file and streams the 2 kHz channels.
 Order: validate the profile against the rig's limits (nothing moves if it is
 refused) -> start the acquisition process -> zero the drive output (NI: read it
 back) -> enable the drive -> arm the cards -> loop -> zero demand -> disable the
@@ -14,10 +14,10 @@ record is in use, its inverse force map of profile(t + lag) -- controller hook
 dead acquisition process or too many late cycles in a row set the demand to
 zero in that same cycle, disable the drive and close the file ``aborted: ...``.
 
-Its parts, by job: the controller hook in rig.controller, the feedforward choice in
-rig.calibration.motor.demand_source, the loop thread's OS set-up in rig.pacing
+Its parts, by job: the controller hook in rig.loop.hook, the feedforward choice in
+rig.calibration.motor.demand_source, the loop thread's OS set-up in rig.loop.scheduling
 (``loop_cpu``, ``LoopScheduling``), the loop's records, the acquisition's end and the
-file's recovery in rig.recovery.
+file's recovery in rig.loop.recovery.
 """
 
 from __future__ import annotations
@@ -41,17 +41,18 @@ from typing import Any
 
 import numpy as np
 
-from rig import journal, loadcell, motor_torque, pacing, profiles, recovery, runfile
-from rig.acquisition import run_acquisition
+from rig import loadcell, motor_torque, profiles, runfile
 from rig.analysis import events
-from rig.backends import open_daq
+from rig.backends import check_drive_port, open_daq, open_drive_port, reader_calibration
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
 from rig.config import RigConfig
-from rig.controller import Controller, load_controller
 from rig.daq import Daq
-from rig.drive import Drive, DriveError, DriveMonitor
-from rig.errors import InputError
+from rig.errors import InputError, RigError
+from rig.loop import journal, recovery, scheduling
+from rig.loop.acquisition import run_acquisition
+from rig.loop.drive import Drive, DriveError, DriveMonitor
+from rig.loop.hook import Controller, load_controller
 from rig.model.vocabulary import EVENT_DOCS
 
 
@@ -63,21 +64,6 @@ def enable_at_zero(daq: Daq, drive: Drive, say: Callable[[str], None]) -> None:
     if volts is not None:
         say(f"drive output reads {volts:+.4f} V after writing 0 V: enabling the drive")
     drive.enable()
-
-
-def bridge_calibration(cfg: RigConfig, full_records: list[dict[str, Any]]) -> dict[str, Any]:
-    """How the run's fresh bridge channels are calibrated before the run (NI), as their
-    calibration did: the strain gauge nulled and shunt-calibrated with its record's shunt
-    resistor (the config's when the gauge runs on its data sheet); the load cell, whose
-    calibration reads its offset with masses, is left as calibrated."""
-    rec = next((r for r in full_records if r.get("sensor") == "strain_gauge"), None)
-    rs = ((rec or {}).get("fit") or {}).get("shunt_resistor_ohm")
-    if rs is None:
-        rs = cfg.calibration.strain_gauge.shunt_resistor_ohm
-    return {"load_cell": {"null": False, "shunt_resistor_ohm": None},
-            "strain_gauge": {"null": cfg.channels.strain_gauge.enabled,
-                             "shunt_resistor_ohm": float(rs),
-                             "from": "calibration record" if rec else "config"}}
 
 
 @dataclass
@@ -106,7 +92,7 @@ class RunReport:
         return self.status == "complete"
 
 
-class _Abort(Exception):
+class _Abort(RigError):
     pass
 
 
@@ -197,10 +183,10 @@ def check_free_space(cfg: RigConfig, profile: profiles.Profile, trials: int,
     (the whole run's samples at ``bytes_per_sample``, twice: the file and its journal; the
     file's overhead and the margin the
     acquisition keeps free); the estimate in bytes."""
-    from rig.acquisition import SPACE_MARGIN, bytes_per_sample
+    from rig.loop.acquisition import SPACE_MARGIN, bytes_per_sample
 
     seconds = (cfg.loop.settle_s + profile.duration + cfg.loop.rest_s) * trials
-    # the samples twice: in the run file and in its journal (rig.journal)
+    # the samples twice: in the run file and in its journal (rig.loop.journal)
     need = 2 * int(seconds * cfg.rates.acquisition_hz * bytes_per_sample(cfg)) \
         + FILE_OVERHEAD + SPACE_MARGIN
     probe = folder
@@ -284,6 +270,15 @@ def _create_exclusive(path: Path) -> None:
     os.close(fd)
 
 
+def learned_record(profile_path: Path, cfg: RigConfig) -> tuple[dict[str, Any], Path] | None:
+    """The learned-feedforward record (rig.control.records) for this profile, rig and
+    calibration, with its file; None when there is none (issue 18)."""
+    from rig.control import records as learned_records
+
+    prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
+
+
 def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
@@ -305,8 +300,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
                             max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
-    if cfg.backend == "ni" and cfg.drive.port == "sim":
-        raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
+    check_drive_port(cfg)
     ctl = controller or load_controller(cfg.loop.controller)
     cals = cal_records.lookup(cfg)
     full_records = cal_records.embedded(cals, cfg)
@@ -342,7 +336,7 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
             signal.signal(sig, old)
 
 
-class RunStopped(RuntimeError):
+class RunStopped(RigError, RuntimeError):
     """A stop signal arrived while the run was starting (nothing moved, no file kept)."""
 
 
@@ -375,8 +369,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
                 "control_hz": hz, "acquisition_hz": cfg.rates.acquisition_hz,
                 "backend": cfg.backend, "started": _dt.datetime.now(_dt.UTC).isoformat()},
     }
-    bridge_spec = {"bridge_cal": bridge_calibration(cfg, full_records)} \
-        if cfg.backend == "ni" else {}
+    bridge_spec = reader_calibration(cfg, full_records)
     metadata["run"]["bridges"] = {
         "lowpass_hz": {"load_cell": cfg.channels.load_cell.lowpass_hz,
                        "strain_gauge": cfg.channels.strain_gauge.lowpass_hz},
@@ -384,10 +377,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
 
-    cpu = pacing.loop_cpu(cfg, say)
-    if cfg.backend == "sim":  # (seconds of silence otherwise: say what the start is doing)
-        say("building the simulated rig's action model ..." if lockstep or not cfg.sim.realtime
-            else "starting the simulated rig's process (it builds the action model) ...")
+    cpu = scheduling.loop_cpu(cfg, say)
     daq = open_daq(cfg, lockstep=lockstep, on_line=say)
     sim_drive = None
     ctx = mp.get_context("spawn")
@@ -400,17 +390,11 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
     reason: str | None = None
     last_tick = -1
     abort_tb: str | None = None
-    sched = pacing.LoopScheduling()
+    sched = scheduling.LoopScheduling()
+    disable_failed: str | None = None
     try:
-        if cfg.drive.port == "sim":
-            from rig.sim_backend.daq import SimDaq
-            from rig.sim_backend.drive_pty import SimDrive
-
-            assert isinstance(daq, SimDaq)
-            sim_drive = SimDrive(cfg.drive, daq.drive_state)
-            drive = Drive(cfg.drive, sim_drive.port)
-        else:
-            drive = Drive(cfg.drive)
+        port, sim_drive = open_drive_port(cfg, daq)
+        drive = Drive(cfg.drive, port)
         proc = ctx.Process(target=run_acquisition, name="rig-acquisition", args=(
             {**daq.reader_spec(), **bridge_spec}, cfg.model_dump(mode="json"),
             {k: r.to_dict() for k, r in cals.items()}, str(path), metadata, ctrl, status_q))
@@ -513,7 +497,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         _safe(lambda: daq.write_volts(0.0))
         sched.undo()
         if drive is not None and drive.enabled:
-            _safe(drive.disable)
+            disable_failed = _disable(drive, trace or say)
         if monitor is not None:
             monitor.stop()
 
@@ -526,7 +510,9 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
         fin = recovery.finish(proc, ctrl, status_q, rows, trials, status, stats,
-                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials)
+                              (last_tick + 1) * spc, path, cfg, abort_tb, done_trials,
+                              {"drive_disable_failed": disable_failed} if disable_failed
+                              else None)
     finally:
         if reason is not None:  # (a simulated plant behind the loop: not its whole backlog)
             _safe(daq.stop_at_once)
@@ -561,7 +547,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
 def _add_findings(path: Path, final: str, rep: dict[str, Any],
                   found: dict[int, dict[str, float]]) -> None:
     """The repeatability and the events found, added to the closed run file."""
-    from rig.acquisition import SPACE_MARGIN
+    from rig.loop.acquisition import SPACE_MARGIN
 
     if shutil.disk_usage(path.parent).free < SPACE_MARGIN:
         raise OSError(errno.ENOSPC, f"No space left on device (under {SPACE_MARGIN // 1024} "
@@ -599,6 +585,20 @@ def found_events(run: runfile.Run, say: Callable[[str], None]) -> dict[int, dict
 
 def daq_lockstep(daq: Daq) -> bool:
     return bool(getattr(daq, "lockstep", False))
+
+
+def _disable(drive: Drive, report: Callable[[str], None]) -> str | None:
+    """Disable the drive at the run's end; a failure is reported (``report``: the CLI's
+    stderr) and returned for the run file's metadata (``drive_disable_failed``), and the
+    cleanup goes on (0 V is already out)."""
+    try:
+        drive.disable()
+    except Exception as exc:  # noqa: BLE001 - reported and recorded; the cleanup goes on
+        why = f"{type(exc).__name__}: {exc}"
+        report(f"WARNING: the drive did not take its disable command ({why}); the demand is "
+               f"0 V: switch the drive off at its panel")
+        return why
+    return None
 
 
 def _safe(fn: Callable[[], Any]) -> None:

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords
 from rig import strain as strain_mod
 from rig.config import RigConfig
 from rig.daq import Bench, Live, bridge_range, check_bridge
 from rig.errors import InputError
+from rig.sensors import table as sensor_table
 
 
 class SimBench(Bench):
@@ -29,6 +29,7 @@ class SimBench(Bench):
         self._rig: Any = None
 
     def truth(self) -> dict[str, dict[str, float]]:
+        """True sensor parameters (only the simulated bench knows them)."""
         return self.sensors.truth()
 
     def apply_mass(self, mass_kg: float, gravity_m_s2: float) -> None:
@@ -94,5 +95,5 @@ class SimBench(Bench):
         vpn = self.cfg.drive_scaling.volts_per_newton
         rows = np.vstack([rig.cycle(float(f) * vpn) for f in np.asarray(force_n, float)])
         raw = {s.name: s.raw for s in rig.table}
-        return {name: rows[:, calrecords.column(self.cfg, raw[name])]
+        return {name: rows[:, sensor_table.column(self.cfg, raw[name])]
                 for name in self.cfg.channels.encoders}

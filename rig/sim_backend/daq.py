@@ -7,7 +7,7 @@ lock-step (each tick comes as soon as the loop asks; the card buffer makes
 the loop wait for the acquisition process rather than overflow).
 
 Real time: the physics (drive, action, sensors) runs in its own process
-(``rig.sim_backend.plant``), so the loop only paces and writes, as on the real
+(``rig.sim_backend.rig_process``), so the loop only paces and writes, as on the real
 cards; each control period is simulated with the demand the loop wrote for
 it, so the physics matches lock-step, only later (the loop's feedback sees the
 plant's latest sample). Lock-step: the physics runs in the loop's process,
@@ -26,14 +26,15 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, pacing
 from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
 from rig.model.action import ActionModel
+from rig.sensors import table as sensor_table
+from rig.sim_backend import clock
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
-from rig.sim_backend.plant import PlantLink, SharedDriveState, run_plant
+from rig.sim_backend.rig_process import PlantLink, SharedDriveState, run_plant
 from rig.sim_backend.simrig import SimRig
 
 CHECK_EVERY = 25  # ticks between checks that the plant process is alive (real time)
@@ -41,8 +42,8 @@ BUILD_NOTICE_S = 3.0  # s: a plant still building its model after this is report
 
 
 def row_width(config: RigConfig) -> int:
-    """Columns of a simulated card row: those of ``rig.calrecords.raw_names``."""
-    return len(calrecords.raw_names(config))
+    """Columns of a simulated card row: those of ``rig.sensors.table.raw_names``."""
+    return len(sensor_table.raw_names(config))
 
 
 class SimDaq(Daq):
@@ -118,7 +119,7 @@ class SimDaq(Daq):
     def arm(self) -> None:
         if self._armed:
             raise RuntimeError("the simulated rig is already armed")
-        pacing.set_timer_slack()
+        clock.set_timer_slack()
         self._armed = True
 
     def _simulate_to(self, cycles: int) -> None:
@@ -144,7 +145,7 @@ class SimDaq(Daq):
         assert self.link is not None
         target = self.index + 1
         deadline = self.t_start + target * self.dt
-        now = pacing.sleep_until(deadline)
+        now = clock.sleep_until(deadline)
         behind = int((now - self.t_start) / self.dt)
         missed = max(0, behind - target)
         for j in range(target, target + missed):  # the card held the last output meanwhile

@@ -54,13 +54,12 @@ variants: the analog output holds each demand until the next write.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 
 import numpy as np
 
 from rig.errors import InputError
-from rig.motor_torque import process_coefficients, process_discrete, zoh
-from rig.params import Parameters
+from rig.motor_torque import process_coefficients, process_discrete, thesis_process, zoh
+from rig.params import THESIS_TIME_UNIT_S, Parameters
 
 VARIANTS = ("single", "asymmetric", "step_size")
 STEP_SIZE_REFERENCE_N = 10.0   # the step size of Fig. D.1 that Eq. D.1 was identified on
@@ -76,7 +75,8 @@ def ramp_lag_s(K: float, Tw: float, zeta: float, Tp3: float) -> float:
 class DriveModel:
     """Eq. D.1 (filter included) in one of ``VARIANTS``, stepped at a fixed dt (s)."""
 
-    def __init__(self, dt: float, variant: str = "single", time_unit_s: float = 0.002,
+    def __init__(self, dt: float, variant: str = "single",
+                 time_unit_s: float = THESIS_TIME_UNIT_S,
                  params: Parameters | None = None) -> None:
         if variant not in VARIANTS:
             raise InputError(f"variant: expected one of {', '.join(VARIANTS)}, got {variant!r}")
@@ -87,9 +87,7 @@ class DriveModel:
         p = params or Parameters.default()
 
         def coeffs(name: str) -> tuple[float, float, float, float]:
-            m: Mapping[str, float] = p.get(f"actuator.{name}")
-            return (float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
-                    float(m["Tp3"]) * time_unit_s)
+            return thesis_process(p, name, time_unit_s)
 
         self.variant = variant
         self.dt = dt

@@ -17,7 +17,7 @@ import tty
 
 from rig.config import DriveLink
 from rig.sim_backend.drive_state import DriveState, DriveStatus
-from rig.sim_backend.plant import DRIVE_LOG_ENV, DriveLog
+from rig.sim_backend.rig_process import DRIVE_LOG_ENV, DriveLog
 
 
 class SimDrive:

@@ -1,6 +1,6 @@
 """What the simulated drive is doing (enabled, fault code), shared by the simulated serial
 drive (rig.sim_backend.drive_pty), the simulated rig and the plant process: ``DriveState``
-in one process, ``rig.sim_backend.plant.SharedDriveState`` over shared memory across
+in one process, ``rig.sim_backend.rig_process.SharedDriveState`` over shared memory across
 processes; both satisfy ``DriveStatus``."""
 
 from __future__ import annotations

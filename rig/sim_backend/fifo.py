@@ -15,12 +15,12 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 
 _HEADER = 4  # int64: written, read, closed, reserved
 
 
-class BufferOverflow(RuntimeError):
+class BufferOverflow(RigError, RuntimeError):
     """Unread samples were overwritten: the acquisition fell behind."""
 
 

@@ -1,6 +1,6 @@
 """Sensor models for the simulated rig, with seeded true sensitivities and offsets.
 
-One model per entry of the sensor table (``rig.calrecords.sensors``), built from the
+One model per entry of the sensor table (``rig.sensors.table.sensors``), built from the
 entry's ``SimChain``: a true value is (optionally) low-pass filtered, gets its noise and
 becomes what the card reads (V/V or counts) through the sensor's own ``to_raw`` with
 its *true* calibration, which differs from the data-sheet (nominal) one by a seeded
@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rig.calrecords import Sensor, sensors
 from rig.config import RigConfig
+from rig.sensors.table import Sensor, sensors
 
 
 @dataclass

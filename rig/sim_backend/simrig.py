@@ -3,7 +3,7 @@
 Each ``cycle(volts)`` holds the analog output for one control period (2 ms):
 the drive model turns the demand into the force on the key top, the action
 model is advanced under that force, and the sensors produce the rows the
-cards would buffer at 2 kHz, in the columns of ``rig.calrecords.raw_names``
+cards would buffer at 2 kHz, in the columns of ``rig.sensors.table.raw_names``
 (each sensor's true value from its ``SimChain.truth``). The drive only pushes
 while it is enabled and not faulted (see ``DriveState``, shared with the
 simulated serial drive).
@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords
 from rig.config import RigConfig
 from rig.errors import InputError
 from rig.model.action import ActionModel
+from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.sensors import SensorSet
@@ -37,7 +37,7 @@ class SimRig:
         self.model = model or ActionModel(effects=config.sim.effects, output_rate=rate)
         if abs(self.model.output_rate - rate) > 1e-9:
             raise InputError(f"model: expected output_rate {rate} Hz, got {self.model.output_rate}")
-        self.table = calrecords.sensors(config)
+        self.table = sensor_table.sensors(config)
         self.sensors = SensorSet.from_config(config)
         rest = self.model.rest_state()
         at_rest = self.model.channels(np.zeros(1), rest[None, :], np.zeros(1))
@@ -61,8 +61,8 @@ class SimRig:
         self._pending = self._physical(np.zeros(1), rest[None, :], np.zeros(1))
         self.force_now = 0.0
         self.width = 1 + len(self.table)
-        self.feedback = calrecords.column(config, calrecords.FEEDBACK)
-        fb = next(s for s in self.table if s.raw == calrecords.FEEDBACK)
+        self.feedback = sensor_table.column(config, sensor_table.FEEDBACK)
+        fb = next(s for s in self.table if s.raw == sensor_table.FEEDBACK)
         self.last_ratio = float(self.sensors[fb.name].offset)  # the reading at zero force
 
     def truth(self) -> dict[str, dict[str, Any]]:

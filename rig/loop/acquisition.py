@@ -5,13 +5,13 @@ reads the load cell, the strain bridge and the encoders on one sample clock
 in blocks (``acquisition.read_period_s``), checks the sample counter for
 continuity, converts raw values to SI with the calibrations in use, and
 appends raw and calibrated channels to the current trial -- to the run file's journal
-first (rig.journal), then to the HDF5 file -- flushing at least every
+first (rig.loop.journal), then to the HDF5 file -- flushing at least every
 ``acquisition.flush_period_s`` (<= 0.5 s). The loop's 500 Hz records
 arrive over a queue and go to ``commands/``. A card overflow or a gap stops
 acquisition with a clear message: the file is closed ``aborted: ...`` and the
 process exits with code 1. SIGINT, SIGHUP and SIGTERM are ignored here: the run's
 process decides. This process is also the supervisor of the run's process
-(rig.supervisor): if that dies, it zeroes the demand, disables the drive, closes the
+(rig.loop.supervisor): if that dies, it zeroes the demand, disables the drive, closes the
 file ``aborted: the controller process ... died`` and removes the shared blocks the
 dead process owned. Before each flush it checks the free space (``DiskFull``:
 ``aborted: disk full ...``); an ENOSPC at any write ends the same way, and after a
@@ -43,20 +43,22 @@ from typing import Any
 
 import numpy as np
 
-from rig import calrecords, journal, runfile
+from rig import runfile
 from rig.backends import open_reader
-from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault
-from rig.errors import InputError
-from rig.supervisor import ControllerWatch, make_safe
+from rig.errors import InputError, RigError
+from rig.loop import journal
+from rig.loop.supervisor import ControllerWatch, make_safe
+from rig.sensors import table as sensor_table
+from rig.sensors.table import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 
 ABORT_DRAIN_S = 0.3  # s: the wait for the samples of an aborted run's last ticks (a card
 # delivers them within a read period; a simulated plant behind the loop is stopped)
 SPACE_MARGIN = 512 * 1024  # bytes kept free: closing the file, the loop's last records
 
 
-class DiskFull(OSError):
+class DiskFull(RigError, OSError):
     """Too little free space left to write the next block safely."""
 
 
@@ -64,7 +66,7 @@ def bytes_per_sample(cfg: RigConfig) -> int:
     """Upper estimate of the run file's bytes per 2 kHz sample: raw and calibrated channels
     (time, sample counter, raw and SI per sensor) as float64, plus the loop's records
     (10 float64 per control period)."""
-    channels = 2 + 2 * len(calrecords.sensors(cfg))
+    channels = 2 + 2 * len(sensor_table.sensors(cfg))
     per_tick = 8 * len(COMMAND_UNITS) / cfg.rates.samples_per_cycle
     return int(8 * channels + per_tick) + 8
 
@@ -93,10 +95,10 @@ class Acquisition:
         self.ctrl, self.status = ctrl, status
         self.trials: list[_Trial] = []
         self.next_sample = 0
-        self.units = calrecords.channel_units(cfg)
-        self.docs = calrecords.channel_docs(cfg)
-        self.sample_col = calrecords.column(cfg, calrecords.SAMPLE)
-        self.feedback_col = calrecords.column(cfg, calrecords.FEEDBACK)
+        self.units = sensor_table.channel_units(cfg)
+        self.docs = sensor_table.channel_docs(cfg)
+        self.sample_col = sensor_table.column(cfg, sensor_table.SAMPLE)
+        self.feedback_col = sensor_table.column(cfg, sensor_table.FEEDBACK)
         self.stop: tuple[Any, ...] | None = None
 
     # -- messages --------------------------------------------------------------------
@@ -150,7 +152,7 @@ class Acquisition:
 
     def write_pending(self) -> None:
         """Write what arrived since the last flush: to the journal first (each block a whole
-        record, rig.journal), then to the HDF5 file, then flush it. A failed HDF5 write is
+        record, rig.loop.journal), then to the HDF5 file, then flush it. A failed HDF5 write is
         kept in ``h5_failed``: nothing more goes to that file (the journal has it all)."""
         self.check_space()
         self.pending = 0
@@ -162,7 +164,7 @@ class Acquisition:
             if tr.rows:
                 block = np.vstack(tr.rows)
                 tr.rows.clear()
-                data = calrecords.convert(block, self.cfg, self.cals, tr.profile_start)
+                data = sensor_table.convert(block, self.cfg, self.cals, tr.profile_start)
                 blocks.append((tr, "channels", data, self.units, self.docs, block.shape[0]))
             for cmd in tr.commands:
                 blocks.append((tr, "commands", cmd, COMMAND_UNITS, COMMAND_DOCS, 0))
@@ -233,7 +235,7 @@ class Acquisition:
         self.writer.close(status)
 
 
-class _ControllerDied(Exception):
+class _ControllerDied(RigError):
     def __init__(self, watch: ControllerWatch) -> None:
         super().__init__(f"the controller process (pid {watch.pid}) died; the supervisor zeroed "
                          f"the demand and disabled the drive")
@@ -262,7 +264,7 @@ def run_acquisition(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[s
                     path: str, metadata: dict[str, Any], ctrl: Any, status: Any,
                     controller_pid: int | None = None) -> None:
     """Entry point of the acquisition process; it supervises ``controller_pid`` (default its
-    parent, the loop's process): see rig.supervisor. It ends with ``os._exit`` once the file
+    parent, the loop's process): see rig.loop.supervisor. It ends with ``os._exit`` once the file
     is closed and the answer sent: the run's process waits for that answer, not for an
     interpreter's teardown (numba and h5py loaded: about a second, several under load), and
     after a failed HDF5 write h5py's teardown of its handles is skipped."""

@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import journal, runfile
-from rig.calrecords import COMMAND_DOCS, COMMAND_UNITS
+from rig import runfile
 from rig.config import RigConfig
+from rig.loop import journal
+from rig.sensors.table import COMMAND_DOCS, COMMAND_UNITS
 
 COLUMNS = tuple(COMMAND_UNITS)  # a loop record's columns (the run file's commands/) ...
 TRIAL = len(COLUMNS)            # ... and then the index of its trial
@@ -92,9 +93,11 @@ class Finished:
 
 def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, status: str,
             stats: dict[str, float], end_sample: int, path: Path, cfg: RigConfig,
-            abort_tb: str | None = None, done_trials: int = 0) -> Finished:
-    """Stop the acquisition process and see the file closed; recover it if the process died."""
-    meta: dict[str, Any] = {"loop_lateness": stats}
+            abort_tb: str | None = None, done_trials: int = 0,
+            extra_meta: dict[str, Any] | None = None) -> Finished:
+    """Stop the acquisition process and see the file closed; recover it if the process died.
+    ``extra_meta``: more of the run's metadata from the loop's side (a failed drive disable)."""
+    meta: dict[str, Any] = {"loop_lateness": stats, **(extra_meta or {})}
     if abort_tb is not None:
         meta["abort_traceback"] = abort_tb
     tattrs: dict[int, dict[str, Any]] = {k: {"status": "complete"} for k in range(done_trials)}
@@ -190,7 +193,7 @@ def _finish_from_journal(path: Path, rows: LoopRecords, trials: int, final: str,
                          errors: list[str]) -> Finished:
     """The acquisition died or failed and left its journal: add the loop's records it had not
     written, the metadata and the final status to the journal, then rebuild the run file
-    from it (rig.journal.recover) when the disk has room; else leave the journal (and the
+    from it (rig.loop.journal.recover) when the disk has room; else leave the journal (and the
     HDF5 file as the acquisition left it) for ``rig recover``. The HDF5 file is never written
     here: after a failed write (a full disk) HDF5 may fail again or crash."""
     jpath = journal.journal_path(path)

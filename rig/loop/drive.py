@@ -15,10 +15,10 @@ import time
 import serial
 
 from rig.config import DriveLink
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 
 
-class DriveError(RuntimeError):
+class DriveError(RigError, RuntimeError):
     """The drive refused a command or did not answer."""
 
 

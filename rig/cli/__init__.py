@@ -1,4 +1,6 @@
-"""The `rig` command line (thin: parsing, printing; the work is in rig.services)."""
+"""The `rig` command line (thin: parsing, printing; the work is in rig.services): the
+commands, with ``rig calibrate`` / ``rig check`` in rig.cli.calibrate and what they all share
+(the app, consoles, one-line errors, progress) in rig.cli.common."""
 
 from __future__ import annotations
 
@@ -9,93 +11,26 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 
+from rig.cli import calibrate as _calibrate  # noqa: F401 - registers rig calibrate / check
+from rig.cli.common import (
+    _analysis_progress,
+    _bar,
+    _effect_names,
+    _emit_json,
+    _fail,
+    _JsonOpt,
+    _plain,
+    _plain_err,
+    _warn_unfinished,
+    app,
+    console,
+    err,
+    options,
+)
 from rig.errors import InputError, refuse_existing
 
-app = typer.Typer(add_completion=True, no_args_is_help=True,
-                  help="Piano-action test rig: simulate, run, calibrate, compare.")
-console = Console(soft_wrap=True)  # off a terminal: no wrapping at 80 columns
-err = Console(stderr=True, soft_wrap=True)
-
-
-def _version(value: bool) -> None:
-    if value:
-        from rig.runfile import git_commit
-        from rig.version import __version__
-
-        console.print(f"rig {__version__} (git {git_commit()[:12]})", markup=False,
-                      highlight=False)
-        raise typer.Exit()
-
-
-@app.callback()
-def _main(version: Annotated[bool, typer.Option(
-        "--version", callback=_version, is_eager=True, help="print the version and exit")
-] = False, verbose: Annotated[bool, typer.Option(
-        "--verbose", "-v", help="tracebacks of internal errors")] = False,
-        quiet: Annotated[bool, typer.Option(
-            "--quiet", "-q", help="no progress display (results and errors only)")] = False,
-) -> None:
-    """Piano-action test rig: simulate, run, calibrate, compare."""
-    options.verbose, options.quiet = verbose, quiet
-
-
-_JsonOpt = Annotated[bool, typer.Option(
-    "--json", help="print one JSON document instead of text (schemas: docs/json.md)")]
-
-
-def _emit_json(doc: dict[str, Any]) -> None:
-    """One JSON document on stdout (NaN and infinities as null), nothing else."""
-    import json
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, float):
-            return v if math.isfinite(v) else None
-        if isinstance(v, dict):
-            return {str(k): clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        if hasattr(v, "item") and callable(v.item):  # numpy scalars
-            return clean(v.item())
-        return v
-
-    print(json.dumps(clean(doc), allow_nan=False))
-
-
-def _effect_names(incomplete: str) -> list[str]:
-    """Shell completion of effect names (the library's)."""
-    from rig.model.effects import BUILTIN
-
-    return [n for n in BUILTIN if n.startswith(incomplete)]
-
-
-class _Options:
-    """The global options (``rig -v``, ``rig -q``)."""
-
-    verbose = False
-    quiet = False
-
-
-options = _Options()
-
-
-def _fail(exc: Exception) -> typer.Exit:
-    """The user's bad input (InputError): one line, exit 2. Anything else failed inside rig
-    or a library: one line and exit 1, the traceback with ``rig -v``."""
-    if isinstance(exc, InputError):
-        err.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
-        return typer.Exit(code=2)
-    if options.verbose:
-        import traceback
-
-        err.print("".join(traceback.format_exception(exc)), markup=False, highlight=False,
-                  soft_wrap=True)
-    hint = "" if options.verbose else " (`rig -v ...` shows the traceback)"
-    err.print(f"error: {type(exc).__name__}: {exc}{hint}", markup=False, highlight=False,
-              soft_wrap=True)
-    return typer.Exit(code=1)
-
+__all__ = ["app", "main", "options"]
 
 @app.command()
 def simulate(
@@ -221,107 +156,17 @@ def info(run: Annotated[Path, typer.Argument(help="run file (.h5)")],
          as_json: _JsonOpt = False) -> None:
     """Summarize a run file: status, provenance, calibrations, loop statistics, and per
     trial its channels with value ranges and its events in time order."""
-    import numpy as np
-
-    from rig import display, runfile
+    from rig.services import info as svc
 
     try:
-        r = runfile.read(run)
+        r = svc.read(run)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
-    a = r.attrs
     if as_json:
-        _emit_json(_info_doc(run, r))
+        _emit_json(svc.document(run, r))
         return
-    _plain(f"{run}: {r.kind} run, status {r.status}")
-    _plain(f"created {a.get('created')} on {a.get('host')} by rig "
-           f"{a.get('software_version')} ({str(a.get('git_commit'))[:12]})")
-    imported = r.metadata.get("import")
-    if isinstance(imported, dict):
-        for f in imported.get("files", []):
-            if isinstance(f, dict):
-                _plain(f"imported from {f.get('name')} ({f.get('format')}, sha256 "
-                       f"{str(f.get('sha256'))[:16]}) through {imported.get('map_file')}")
-    model = r.metadata.get("model")
-    if isinstance(model, dict):
-        names = [e.get("name") for e in model.get("effects", [])]
-        _plain(f"model effects: {', '.join(names) or 'none'}")
-    cals = r.metadata.get("calibrations")
-    if isinstance(cals, list) and cals:
-        _plain("calibrations:")
-        for c in cals:
-            if isinstance(c, dict):
-                _plain(f"  {c.get('sensor', '?'):<18} {c.get('sensitivity', math.nan):.6g} "
-                       f"{c.get('units', '')} per {c.get('raw_units', '')}, offset "
-                       f"{c.get('offset', math.nan):.6g}, "
-                       f"{'nominal' if c.get('nominal') else 'measured'} ({c.get('source', '')})")
-    loop = r.metadata.get("loop_lateness")
-    if isinstance(loop, dict) and loop:
-        _plain(f"loop: {int(loop.get('cycles', 0))} cycles, lateness median "
-               f"{loop.get('median_s', math.nan) * 1e3:.3f} ms, p99 "
-               f"{loop.get('p99_s', math.nan) * 1e3:.3f} ms, max "
-               f"{loop.get('max_s', math.nan) * 1e3:.3f} ms, missed "
-               f"{int(loop.get('missed', 0))}, late {int(loop.get('late_cycles', 0))}")
-    for i, tr in enumerate(r.trials):
-        n = tr.time.size if "time" in tr.channels else 0
-        span = f"{tr.time[0]:.3f} to {tr.time[-1]:.3f} s" if n > 1 else "-"
-        _plain(f"trial {i}: {n} samples, {span}, status {tr.attrs.get('status')}")
-        late = tr.commands.get("lateness")
-        if late is not None and late.size:
-            missed = tr.commands.get("missed")
-            _plain(f"  loop: {late.size} cycles, lateness median "
-                   f"{np.median(late) * 1e3:.3f} ms, p99 {np.percentile(late, 99) * 1e3:.3f} "
-                   f"ms, max {late.max() * 1e3:.3f} ms, missed "
-                   f"{int(np.nansum(missed)) if missed is not None else 0}")
-        for name, data in tr.channels.items():
-            k, u = display.scale(tr.units.get(name, ""))
-            arr = np.asarray(data, float)
-            rng = (f"{np.nanmin(arr) * k:.5g} .. {np.nanmax(arr) * k:.5g} {u}"
-                   if arr.size and np.isfinite(arr).any() else "no finite value")
-            shape = "" if arr.ndim == 1 else f" {arr.shape[1]} columns"
-            _plain(f"  {name:<24} {tr.units.get(name, ''):<6} {rng}{shape}")
-        for name, t in sorted(tr.events.items(), key=lambda x: (not math.isfinite(x[1]),
-                                                                 x[1])):
-            shown = f"{t * 1e3:.2f} ms" if math.isfinite(t) else "--"
-            found = "  (found in the channels)" if name in tr.event_sources else ""
-            _plain(f"  event {name:<22} {shown}{found}")
-
-
-def _info_doc(path: Path, r: Any) -> dict[str, Any]:
-    import numpy as np
-
-    model = r.metadata.get("model")
-    trials = []
-    for i, tr in enumerate(r.trials):
-        t = tr.channels.get("time")
-        chans = []
-        for name, data in tr.channels.items():
-            arr = np.asarray(data, float)
-            fin = arr[np.isfinite(arr)]
-            chans.append({"name": name, "units": tr.units.get(name, ""),
-                          "min": float(fin.min()) if fin.size else None,
-                          "max": float(fin.max()) if fin.size else None,
-                          "columns": [c.item() if hasattr(c, "item") else c
-                                      for c in tr.columns[name]] if name in tr.columns else None})
-        ev = sorted(tr.events.items(), key=lambda x: (not math.isfinite(x[1]), x[1]))
-        trials.append({"index": i, "status": str(tr.attrs.get("status", "")),
-                       "samples": int(t.size) if t is not None else 0,
-                       "start_s": float(t[0]) if t is not None and t.size else None,
-                       "end_s": float(t[-1]) if t is not None and t.size else None,
-                       "channels": chans, "events": [{"name": k, "time_s": v,
-                                                   "source": tr.event_sources.get(k)}
-                                                  for k, v in ev],
-                       "commands": sorted(tr.commands)})
-    cals = r.metadata.get("calibrations")
-    loop = r.metadata.get("loop_lateness")
-    return {"schema": "rig.info/1", "path": str(path), "kind": r.kind, "status": r.status,
-            "created": str(r.attrs.get("created", "")), "host": str(r.attrs.get("host", "")),
-            "software_version": str(r.attrs.get("software_version", "")),
-            "git_commit": str(r.attrs.get("git_commit", "")),
-            "model_effects": [e.get("name") for e in model.get("effects", [])]
-            if isinstance(model, dict) else None,
-            "calibrations": cals if isinstance(cals, list) else [],
-            "loop_lateness": loop if isinstance(loop, dict) else None, "trials": trials}
+    for line in svc.lines(run, r):
+        _plain(line)
 
 
 @app.command("plot")
@@ -359,39 +204,22 @@ def regulate(
 ) -> None:
     """The model's regulation as a technician measures it (a slow key press), in mm; with
     --to, the regulating adjustments that meet the targets, written to --write."""
-    from rig.model import modelfile, regulation
-    from rig.model.action import ActionModel
+    from rig.model.regulation import FIGURE_DOCS
+    from rig.services import regulate as svc
 
     try:
-        if write is not None and to is None:
-            raise InputError("--write: needs --to targets.yaml")
-        if write is not None and write.exists() and not force:
-            raise InputError(f"{write}: exists (use --force to overwrite)")
-        m = ActionModel.from_yaml(model) if model else ActionModel()
-        targets = regulation.load_targets(to) if to is not None else {}
-        if to is not None:
-            points, figures = regulation.solve(m.params, targets, m.effect_names)
-            base, base_dir = modelfile.read(model)
-            out_dir = write.resolve().parent if write is not None else base_dir
-            data = regulation.regulated_model_yaml(modelfile.rebased(base, base_dir, out_dir),
-                                                   points, to)
-        else:
-            figures = regulation.measure(m)
+        reg = svc.regulate(model, to, write, force)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
-    for name, value in figures.items():
-        target = targets.get(name, regulation.THESIS_TARGETS.get(name))
-        label = "target" if name in targets else "thesis"
+    for name, value in reg.figures.items():
+        target, label = svc.target_of(name, reg)
         shown = f"  ({label} {target * 1e3:.1f} mm)" if target is not None else ""
-        console.print(f"{name:<17} {value * 1e3:7.2f} mm  {regulation.FIGURE_DOCS[name]}{shown}",
-                      markup=False, highlight=False, soft_wrap=True)
-    if to is not None:
-        for path, at in points.items():
-            console.print(f"adjusted {path}: y = {at[1] * 1e3:.3f} mm", markup=False,
-                          highlight=False, soft_wrap=True)
+        _plain(f"{name:<17} {value * 1e3:7.2f} mm  {FIGURE_DOCS[name]}{shown}")
+    for path, at in reg.points.items():
+        _plain(f"adjusted {path}: y = {at[1] * 1e3:.3f} mm")
     if write is not None:
-        modelfile.write(data, write)
-        console.print(f"wrote {write}", markup=False, highlight=False, soft_wrap=True)
+        svc.save(reg, write)
+        _plain(f"wrote {write}")
 
 
 @app.command("touch")
@@ -458,14 +286,6 @@ def list_effects(as_json: _JsonOpt = False) -> None:
 
 
 # ---- rig run: the torque loop and acquisition; the work is in rig.services.run ----
-def _plain(text: str) -> None:
-    console.print(text, markup=False, highlight=False, soft_wrap=True)
-
-
-def _plain_err(text: str) -> None:
-    err.print(text, markup=False, highlight=False, soft_wrap=True)
-
-
 @app.command("run")
 def run_profile(
     profile: Annotated[Path, typer.Argument(help="force profile (YAML or CSV)")],
@@ -499,7 +319,7 @@ def run_profile(
     record = None
     if learn:
         if trials != 1:
-            raise _fail(ValueError("--learn: plays one trial per learning step; drop --trials"))
+            raise _fail(InputError("--learn: plays one trial per learning step; drop --trials"))
         from rig.services import learn as learn_svc
 
         _plain(which)
@@ -513,7 +333,7 @@ def run_profile(
         return
     if learned:
         try:
-            record = _learned_record(profile, cfg)
+            record = svc.learned_record(profile, cfg)
         except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
             raise _fail(exc) from None
     if record is not None:
@@ -563,7 +383,7 @@ def recover(
 ) -> None:
     """Rebuild a run file from the journal its run left beside it (a full disk, a killed or
     crashed run): every block the acquisition flushed, the loop's records, the status."""
-    from rig import journal
+    from rig.loop import journal
 
     try:
         rec = journal.recover(run, out=out, force=force)
@@ -574,277 +394,9 @@ def recover(
            f"{rec.status}{torn}")
 
 
-def _learned_record(profile: Path, cfg: Any) -> tuple[dict[str, Any], Path] | None:
-    """Issue 18: the learned-feedforward record for this profile, rig and calibration."""
-    from rig import profiles
-    from rig.calibration import records as cal_records
-    from rig.control import records as learned_records
-
-    prof = profiles.load(profile, force_limit=cfg.limits.max_force_n)
-    return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
-
-
-# ---- rig calibrate / rig check: the work is in rig.services.calibrate ----
-calibrate_app = typer.Typer(no_args_is_help=True,
-                            help="Calibrate a sensor or the motor; writes a calibration record.")
-check_app = typer.Typer(no_args_is_help=True, help="Check sensors on the rig.")
-app.add_typer(calibrate_app, name="calibrate")
-app.add_typer(check_app, name="check")
-
-_RigOpt = Annotated[Path | None, typer.Option(
-    "--rig", help="rig config YAML (default ./rig.yaml, else the built-in simulated rig)")]
-_OperatorOpt = Annotated[str | None, typer.Option(help="who calibrates (default: login name)")]
-_RecordsOpt = Annotated[Path | None, typer.Option(
-    "--records", help="records folder (default calibration.records_folder or "
-                      "<data_folder>/calibrations)")]
-
-
-def _say(text: str) -> None:
-    console.print(text, markup=False, highlight=False, soft_wrap=True)
-
-
-def _rig_for_calibration(rig: Path | None):  # noqa: ANN202 - returns RigConfig
-    from rig import config as rig_config
-
-    try:
-        cfg, which = rig_config.resolve(rig)
-    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-        raise _fail(exc) from None
-    _say(which)
-    return cfg
-
-
-@calibrate_app.command("loadcell")
-def calibrate_loadcell(
-    rig: _RigOpt = None,
-    points: Annotated[Path | None, typer.Option(
-        "--points", help="CSV with mass_kg (and optionally reading_mv_per_v) per point, in "
-                         "order; without it the command prompts for each mass")] = None,
-    degree: Annotated[int, typer.Option(help="1 = linear (default), 2-3 = polynomial")] = 1,
-    operator: _OperatorOpt = None,
-    serial: Annotated[str | None, typer.Option(help="load cell serial number")] = None,
-    records_dir: _RecordsOpt = None,
-) -> None:
-    """Known masses, loading then unloading (>= 5 points): fit, spec figures, uncertainty."""
-    from rig.backends import open_bench
-    from rig.calibration.loadcell import parse_mass, read_csv
-    from rig.calibration.settings import settings_for
-    from rig.services import calibrate as svc
-
-    cfg = _rig_for_calibration(rig)
-    s = settings_for(cfg).load_cell
-
-    def live(v: float) -> None:
-        console.print(f"  reading {v * 1e3:+.5f} mV/V", end="\r", markup=False,
-                      highlight=False)
-
-    bench = open_bench(cfg)
-    try:
-        if points is not None:
-            try:
-                rows = read_csv(points)
-                masses = [m for m, _ in rows]
-                pts = svc.loadcell_points(cfg, bench, masses, [r for _, r in rows], live)
-            except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-                raise _fail(exc) from None
-        else:
-            _say(f"Place each mass on the key top, loading up to the largest and then "
-                 f"unloading (at least {s.min_points} masses). Each point is averaged for "
-                 f"{s.average_s:g} s after {s.settle_s:g} s. Blank line to finish.")
-            masses, readings = [], []
-            while True:
-                text = typer.prompt(f"point {len(masses) + 1}: mass on the key top (kg)",
-                                    default="", show_default=False).strip()
-                if not text:
-                    break
-                try:
-                    m = parse_mass(text, f"points[{len(masses) + 1}] mass")
-                    if masses and m == masses[-1]:
-                        raise InputError(f"points[{len(masses) + 1}] mass: same as the "
-                                         f"previous point")
-                except ValueError as exc:
-                    err.print(f"refused: {exc}", markup=False, highlight=False)
-                    continue
-                from rig.calibration.loadcell import measure
-
-                r = measure(bench, m, s, live)
-                masses.append(m)
-                readings.append(r[0])
-                _say(f"  {m:g} kg: {r[0] * 1e3:+.5f} mV/V (sd {r[1] * 1e3:.5f}, {r[2]} "
-                     f"samples)")
-            try:
-                pts = svc.loadcell_points(cfg, bench, masses, readings)
-            except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-                raise _fail(exc) from None
-    finally:
-        bench.close()
-    from rig.calibration.loadcell import analyse
-
-    try:
-        result = analyse(pts, cfg, s, degree)
-    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-        raise _fail(exc) from None
-    for line in svc.summary_loadcell(result):
-        _say(line)
-    path = svc.save_loadcell(cfg, result, operator=operator, identifier=serial,
-                             folder=records_dir)
-    _say(f"wrote {path}")
-
-
-@calibrate_app.command("strain")
-def calibrate_strain(
-    rig: _RigOpt = None,
-    shunt_ohm: Annotated[float | None, typer.Option(
-        help="shunt resistor, ohm (default calibration.strain_gauge.shunt_resistor_ohm)")] = None,
-    operator: _OperatorOpt = None,
-    serial: Annotated[str | None, typer.Option(help="gauge identifier")] = None,
-    records_dir: _RecordsOpt = None,
-) -> None:
-    """Offset nulling with the shank at rest, then the shunt step; records the gain."""
-    from rig.services import calibrate as svc
-
-    cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
-        typer.confirm("Is the hammer shank at rest and untouched?", default=True, abort=True)
-    try:
-        result, path = svc.calibrate_strain(cfg, operator=operator, identifier=serial,
-                                            folder=records_dir, shunt_ohm=shunt_ohm)
-    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-        raise _fail(exc) from None
-    for line in svc.summary_strain(result):
-        _say(line)
-    _say(f"wrote {path}")
-
-
-@calibrate_app.command("motor")
-def calibrate_motor(
-    rig: _RigOpt = None,
-    profile: Annotated[Path | None, typer.Option(
-        help="profile for the tracking report (default profiles/forte.yaml)")] = None,
-    operator: _OperatorOpt = None,
-    records_dir: _RecordsOpt = None,
-) -> None:
-    """Steps and ramps against a static surface: force map, lag, dynamic model."""
-    from rig.services import calibrate as svc
-
-    cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
-        typer.confirm("Is the arm pressing the static surface (key blocked), drive enabled?",
-                      default=False, abort=True)
-    try:
-        result, path, track = svc.calibrate_motor(cfg, operator=operator, folder=records_dir,
-                                                  profile=profile)
-    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-        raise _fail(exc) from None
-    for line in svc.summary_motor(result, track):
-        _say(line)
-    _say(f"wrote {path}")
-
-
-@check_app.command("encoders")
-def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
-                   records_dir: _RecordsOpt = None) -> None:
-    """Slow key travel: each encoder counts, in the right direction, at its resolution."""
-    from rig.services import calibrate as svc
-
-    cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
-        typer.confirm("Press the key slowly to the bottom and back while the check runs "
-                      "(about 4 s). Ready?", default=True, abort=True)
-    try:
-        result, path = svc.check_encoders(cfg, operator=operator, folder=records_dir)
-    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
-        raise _fail(exc) from None
-    for name, r in result.results.items():
-        _say(f"{name}: {'ok' if not r['problem'] else r['problem']} ({r['counts_range']:.0f} "
-             f"counts" + (f", {r['ratio_to_model']:.3f} of the model" if "ratio_to_model" in r
-                          else "") + ")")
-    _say(f"wrote {path}")
-    if not result.passed:
-        raise typer.Exit(code=1)
-# ---- end of rig calibrate / rig check ----
 
 
 # ---- rig compare / diagnose / fit / synth: the work is in rig.analysis ----
-from collections.abc import Callable  # noqa: E402
-
-
-def _analysis_progress(bar: Any, task: object) -> Callable[[float, float, str], None]:
-    def update(done: float, total: float, text: str = "") -> None:
-        bar.update(task, total=total, completed=done, sim=text)
-
-    return update
-
-
-def _warn_unfinished(runs: list[Path]) -> None:
-    """One line on stderr for each run file that is aborted or still running."""
-    from rig.analysis.measurement import status_warning
-
-    for path in runs:
-        text = status_warning(path)
-        if text:
-            err.print(text, markup=False, highlight=False, soft_wrap=True)
-
-
-class _LineProgress:
-    """Progress as plain lines on stderr when stderr is not a terminal (pipes, logs,
-    notebooks): a line when the stage changes and at most one every ``every`` seconds;
-    nothing with ``rig -q``. The subset of rich's Progress the commands use."""
-
-    def __init__(self, every: float = 2.0, quiet: bool = False) -> None:
-        import time
-
-        self._clock = time.monotonic
-        self.every, self.quiet = every, quiet
-        self._tasks: dict[int, dict[str, Any]] = {}
-        self._last = -math.inf
-        self._t0 = self._clock()
-
-    def __enter__(self) -> _LineProgress:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-    def add_task(self, description: str, total: float | None = None, **fields: Any) -> int:
-        k = len(self._tasks)
-        self._tasks[k] = {"description": description, "total": total, "completed": 0.0,
-                          **fields}
-        self._say(self._tasks[k], force=True)
-        return k
-
-    def update(self, task: int, **changes: Any) -> None:
-        t = self._tasks[task]
-        new_stage = "description" in changes and changes["description"] != t["description"]
-        t.update(changes)
-        self._say(t, force=new_stage)
-
-    def _say(self, t: dict[str, Any], force: bool) -> None:
-        now = self._clock()
-        if self.quiet or not (force or now - self._last >= self.every):
-            return
-        self._last = now
-        done = ""
-        if t.get("total"):
-            done = f" {100 * float(t['completed']) / float(t['total']):.0f} %"
-        extra = f" {t['sim']}" if t.get("sim") else ""
-        import sys
-
-        print(f"rig: {t['description']}{done}{extra} ({now - self._t0:.0f} s)",
-              file=sys.stderr, flush=True)
-
-
-def _bar(console_: Console | None = None) -> Any:
-    """The progress display: a bar on a terminal, plain lines on stderr off one, nothing
-    with -q."""
-    target = console_ or err
-    if options.quiet or not target.is_terminal:
-        return _LineProgress(quiet=options.quiet)
-    # rich.progress only on a terminal (it imports some 30 of rich's modules)
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    return Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[sim]}"),
-                    TimeElapsedColumn(), console=target, transient=True)
 
 
 @app.command("compare")

@@ -1,9 +1,6 @@
-"""Software pacing for the simulated rig's clock (and the benchmark's bare loop), and the
-torque loop's OS set-up (``loop_cpu``, ``LoopScheduling``).
+"""The torque loop's OS set-up (``loop_cpu``, ``LoopScheduling``); the simulated clock's
+software pacing is rig.sim_backend.clock.
 
-On this kind of VM, sleeping to 0.5 ms before a deadline and then spinning on
-``perf_counter`` wakes within ~1 us (median) where a plain sleep is ~100 us
-late (see docs/performance.md). A 1 ns timer slack makes the sleep tighter.
 When other processes load the machine, only a real-time scheduling class keeps
 the loop on time: ``realtime_priority`` puts the calling thread in SCHED_FIFO
 where the OS permits it (root or CAP_SYS_NICE / an rtprio limit), for one
@@ -16,38 +13,14 @@ affinity is per thread), as a real-time lab PC pins its control loop to a core.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import gc
 import os
 import sys
-import time
 from collections.abc import Callable
 from typing import Any
 
 from rig.config import RigConfig
 from rig.errors import InputError
-
-PR_SET_TIMERSLACK = 29
-SPIN_S = 0.0005
-
-
-def set_timer_slack(ns: int = 1) -> bool:
-    """Ask Linux for a tight timer slack for this thread; False where unsupported."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        return bool(libc.prctl(PR_SET_TIMERSLACK, ns, 0, 0, 0) == 0)
-    except (OSError, AttributeError):
-        return False
-
-
-def sleep_until(deadline: float, spin_s: float = SPIN_S) -> float:
-    """Sleep, then spin, until perf_counter() >= deadline; returns the wake time."""
-    now = time.perf_counter()
-    if deadline - now > spin_s:
-        time.sleep(deadline - now - spin_s)
-    while (now := time.perf_counter()) < deadline:
-        pass
-    return now
 
 
 def realtime_priority(priority: int, tid: int = 0) -> bool:

@@ -101,7 +101,7 @@ def make_safe(reader: Any, cfg: Any) -> None:
     except Exception as exc:
         errors.append(f"zeroing the output: {type(exc).__name__}: {exc}")
     if cfg.drive.port != "sim":
-        from rig.drive import Drive
+        from rig.loop.drive import Drive
 
         try:
             drive = Drive(cfg.drive)

@@ -70,6 +70,15 @@ class SimChain:
 
 
 @dataclass(frozen=True)
+class NiSetup:
+    """A built-in sensor's NI channel set-up, by name: rig.ni_backend.channels.SETUPS[kind]
+    called with the task and ``args``."""
+
+    kind: str
+    args: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
 class Sensor:
     """One sensor: a raw column of the card rows and the SI channel calibrated from it."""
 
@@ -84,7 +93,9 @@ class Sensor:
     offset: float
     to_si: Convert             # raw -> SI with a calibration (sensitivity, offset)
     to_raw: Convert            # SI -> raw: what the card reads of a true value
-    ni_channel: Callable[[Any], None]  # adds its DAQmx channel to an nidaqmx task
+    ni_channel: NiSetup | Callable[[Any], None]  # its DAQmx channel: a built-in set-up
+                                                 # (rig.ni_backend.channels) or a function
+                                                 # adding it to an nidaqmx task
     sim: SimChain
     ni_counter: bool = False   # False: a channel of the shared analog-input task; True: a
                                # counter task of its own on the analog-input sample clock
@@ -96,7 +107,7 @@ def _load_cell(cfg: RigConfig) -> list[Sensor]:
         "load_cell", "load_cell_ratio", "V/V", "load-cell bridge output, raw",
         "force", "N", "force on the key top from the load cell (calibration in metadata)",
         loadcell.nominal_sensitivity(lc), 0.0, loadcell.to_newtons, loadcell.to_ratio,
-        functools.partial(loadcell.add_ni_channel, cfg=lc),
+        NiSetup("load_cell", {"cfg": lc}),
         SimChain(lambda ch: ch["force"], noise=cfg.sim.load_cell_noise_n,
                  spread=cfg.sim.sensor_spread, offset_sd=0.02e-3,
                  filter_hz=cfg.sim.load_cell_filter_hz))]
@@ -112,7 +123,7 @@ def _strain_gauge(cfg: RigConfig) -> list[Sensor]:
         "shank_strain", "m/m", "hammer-shank strain at the gauge, + = tension",
         g.gage_factor, 0.0, functools.partial(strain.to_strain, **wires),
         functools.partial(strain.to_ratio, **wires),
-        functools.partial(strain.add_ni_channel, cfg=g),
+        NiSetup("strain_gauge", {"cfg": g}),
         SimChain(lambda ch: ch.get("shank_strain"), noise=cfg.sim.strain_noise,
                  spread=cfg.sim.sensor_spread, offset_sd=0.1e-3,
                  needs="the flexible_shank effect (or set channels.strain_gauge.enabled: "
@@ -147,7 +158,7 @@ def _encoders(cfg: RigConfig) -> list[Sensor]:
             f"{enc.body} from the {n} encoder: calibration offset + counted motion "
             f"(nominal: {start})",
             enc.sign * enc.si_per_count, enc.initial_value, encoders.to_si, encoders.to_counts,
-            functools.partial(encoders.add_ni_channel, enc=enc, name=n),
+            NiSetup("encoder", {"enc": enc, "name": n}),
             # mounting (eccentricity, cosine error) makes the true scale differ slightly
             SimChain(truth, spread=0.1 * cfg.sim.sensor_spread, counts_from_start=True),
             ni_counter=True))

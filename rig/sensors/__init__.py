@@ -1,0 +1,2 @@
+"""The sensors: the sensor table, the run-file channels and calibrations, raw -> SI
+(``table``; docs/architecture.md, "Add a sensor")."""
