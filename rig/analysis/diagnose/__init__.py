@@ -109,6 +109,7 @@ from rig.analysis.diagnose.search import (
     _without_newcomer,
     candidates_for,
     evaluate_candidate,
+    held_out_p,
     judge,
 )
 from rig.analysis.diagnose.write import write_model
@@ -120,8 +121,8 @@ __all__ = [
     "_converge", "_evaluate", "_instance", "_instances", "_moves_input", "_noise_draws",
     "_noise_free_gap", "_off_z", "_pair_corr", "_pick", "_restarts", "_round", "_set_effects",
     "_set_model", "_unit", "_unneeded", "_valley_pairs", "_valleys", "_without",
-    "_without_newcomer", "candidates_for", "diagnose", "evaluate_candidate", "ft", "judge",
-    "rank", "stability_notes", "write_model",
+    "_without_newcomer", "candidates_for", "diagnose", "evaluate_candidate", "ft",
+    "held_out_p", "judge", "rank", "stability_notes", "write_model",
 ]
 
 _PARTS = (common, results, search, restarts, notes, core, write)

@@ -29,6 +29,7 @@ from rig.analysis.diagnose.search import (
     _round,
     _unneeded,
     candidates_for,
+    held_out_p,
     judge,
 )
 from rig.analysis.measurement import Measurement
@@ -121,11 +122,12 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             level = alpha / max(1, len(out))
             for c in out:
                 judge(c, level, min_gain, min_noise_gain, z_off)
-            out = rank(out, implies, min_gain)
+            beats = held_out_p(base, by_name, test, held_out_test == "noise")
+            out = rank(out, implies, min_gain, beats, level)
             # an effect implying another is named only if it beats it (rank put it after)
             best, better = _pick(out, chosen[-1] if chosen else None, base, by_name, train,
                                  test, state, level, readopted < MAX_READOPT)
-            out = rank(out, implies, min_gain)  # one the newcomer test refused goes down
+            out = rank(out, implies, min_gain, beats, level)  # a refused newcomer goes down
             if better is not None:
                 # the set so far fits better at the values a candidate's joint refit found
                 # for it (the candidate itself adds nothing): take them and fit the round

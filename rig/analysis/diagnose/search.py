@@ -184,6 +184,39 @@ def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
                       test_noise={k: ms_[k][1] for k in template.test_noise if k in ms_})
 
 
+def held_out_p(base: ActionModel, by_name: Mapping[str, type[Effect]], test: ft.Data,
+               noise: bool) -> Callable[[Candidate, Candidate], float]:
+    """``p(a, b)``: the one-sided held-out p that candidate ``a``'s residual is smaller in
+    mean square than ``b``'s (``stats.noise_model_test`` with the input noise drawn through
+    ``b``'s model when ``noise``, else ``stats.improvement_test``); 1 when either has no
+    held-out residual or ``b``'s model fails. Each pair is tested once."""
+    done: dict[tuple[int, int], float] = {}
+
+    def p(a: Candidate, b: Candidate) -> float:
+        key = (id(a.test_resid), id(b.test_resid))
+        if key in done:
+            return done[key]
+        out = 1.0
+        if a.test_resid is not None and b.test_resid is not None \
+                and a.test_resid.shape == b.test_resid.shape:
+            if not noise:
+                out = stats.improvement_test(b.test_resid, a.test_resid, test.segments())[1]
+            else:
+                try:
+                    model = _set_model(base, by_name, b.effects or (b.name,), b.values,
+                                       test.measurements[0].rate)
+                    resp = ft.input_noise_responses(model, test, r0=b.test_resid)
+                    out = stats.noise_model_test(b.test_resid, a.test_resid,
+                                                 test.noise_vector(), resp)[1]
+                except (ValueError, RuntimeError, FloatingPointError,
+                        np.linalg.LinAlgError):
+                    out = 1.0
+        done[key] = out
+        return out
+
+    return p
+
+
 def _without_newcomer(c: Candidate, current: Candidate | None, base: ActionModel,
                       by_name: Mapping[str, type[Effect]], train: ft.Data, test: ft.Data,
                       state: State, level: float) -> Candidate | None:
