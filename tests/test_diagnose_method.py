@@ -4,22 +4,32 @@ fixed seed.
 - An effect that switches on another (the key encoder's misread switches on lift-off) is
   named instead of it only when the held-out data show what it adds, not when it merely
   removes a share of a residual that is within the noise.
+- Held-out data are another blow than the training one when the run has several.
+- The model as it would be written is checked on the held-out data; worse than the base
+  there, it is neither claimed nor written.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
 from rig import profiles
 from rig.analysis import diagnose as dg
+from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import synth
+from rig.analysis.diagnose.check import written_removal, written_values
+from rig.errors import InputError
 from rig.model.action import ActionModel
+from rig.model.effects import BUILTIN
 
 ROOT = Path(__file__).parents[1]
 FORTE = ROOT / "profiles" / "forte.yaml"
+PIANO = ROOT / "profiles" / "piano.yaml"
 
 
 def _cand(name: str, removal: float) -> dg.Candidate:
@@ -70,3 +80,106 @@ def test_the_public_liftoff_case_names_liftoff_alone(tmp_path: Path) -> None:
     f = d.final
     assert f is not None
     assert abs(f.values["key_liftoff.damping"] - 100.0) <= 1.96 * f.sigma["key_liftoff.damping"]
+
+
+def _blow_meas(peak: float, label: str) -> ms.Measurement:
+    rate = 2000.0
+    t = np.arange(0, 0.6, 1 / rate)
+    f = np.interp(t, [0, 0.02, 0.1, 0.3, 0.34, 0.6], [0, 0, peak, peak, 0, 0])
+    f = f + 0.05 * np.random.default_rng(len(label)).standard_normal(t.size)
+    return ms.Measurement(t, {"time": t, "force": f, "hammer_angle": 0 * t},
+                          {"force": "N", "hammer_angle": "rad"}, label=label)
+
+
+def test_held_out_trials_are_another_blow_when_the_run_has_several() -> None:
+    """Two repeats each of a 30 N and a 1.2 N blow: the blows are told apart by their force
+    (peak and impulse), and the held-out trials are the other blow's, not repeats of the
+    training blow; one blow repeated: alternate trials as before."""
+    meas = [_blow_meas(30, "f0"), _blow_meas(30, "f1"), _blow_meas(1.2, "p0"),
+            _blow_meas(1.2, "p1")]
+    assert ft.blows(meas) == [0, 0, 1, 1]
+    data = ft.Data.build(meas, "force", 0.3, ["hammer_angle"])
+    assert ft.held_out_trials(data) == [2, 3]
+    train, test = ft.split_masks(data)
+    assert [bool(m.all()) for m in train] == [True, True, False, False]
+    assert [bool(m.all()) for m in test] == [False, False, True, True]
+    # interleaved blows: every other blow, whatever the order
+    meas2 = [meas[0], meas[2], meas[1], meas[3], _blow_meas(18, "m")]
+    assert ft.blows(meas2) == [0, 1, 0, 1, 2]
+    assert ft.held_out_trials(ft.Data.build(meas2, "force", 0.3, ["hammer_angle"])) == [1, 3]
+    # one blow repeated: alternate trials
+    same = [_blow_meas(30, f"f{i}") for i in range(4)]
+    assert ft.held_out_trials(ft.Data.build(same, "force", 0.3, ["hammer_angle"])) == [1, 3]
+
+
+@pytest.fixture(scope="module")
+def forte_and_piano(tmp_path_factory: pytest.TempPathFactory) -> list[ms.Measurement]:
+    """The base model's own blows, forte then piano (0.15 s, seed 5)."""
+    path = tmp_path_factory.mktemp("fp") / "fp.h5"
+    synth.synth(ActionModel(), [profiles.load(FORTE), profiles.load(PIANO)], path, seed=5,
+                duration=0.15)
+    return ms.load(path)
+
+
+def test_a_written_model_worse_than_the_base_on_held_out_blows_is_measured_so(
+        forte_and_piano: list[ms.Measurement], tmp_path: Path) -> None:
+    """``check.written_removal`` scores the set at its values as written (rounded to their
+    uncertainty) on the held-out blow: lift-off with a stiff pin friction (10 N) on data
+    with no lift-off predicts the piano blow worse than the base model; at its off values
+    (no friction, the data's own damping) it changes almost nothing."""
+    data = ft.Data.build(forte_and_piano, "force", 0.15, None)
+    train_m, test_m = ft.split_masks(data)
+    test = data.subset(test_m)
+    base = ft.rebuild(ActionModel(), rate=forte_and_piano[0].rate)
+    base_ms = {c: v[0] for c, v in test.channel_ms(test.simulate(base)).items()}
+    by_name = {"key_liftoff": BUILTIN["key_liftoff"]}
+
+    def cand(friction: float, sigma: float) -> dg.Candidate:
+        vals = {"key_liftoff.damping": 100.0, "key_liftoff.pin_friction": friction}
+        return dg.Candidate("key_liftoff", "", vals, {k: sigma for k in vals}, {}, 0.5, {},
+                            10.0, True, effects=("key_liftoff",))
+
+    bad = written_removal(cand(10.0, 0.01), base, by_name, test, base_ms)
+    assert bad is not None and bad < -0.5
+    # the values checked are those write_model writes
+    c = cand(9.7312, 0.04)
+    out = dg.write_model(None, c, tmp_path / "w.yaml")
+    effects = yaml.safe_load(out.read_text())["effects"]
+    assert {f"key_liftoff.{k}": v for k, v in effects[-1]["key_liftoff"].items()} \
+        == written_values(c)
+    assert written_values(c)["key_liftoff.pin_friction"] != c.values["key_liftoff.pin_friction"]
+
+
+@pytest.mark.slow
+def test_a_chosen_set_worse_on_held_out_blows_is_not_claimed_nor_written(tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A set whose final values (after the final refits: here forced to a drive delay of
+    30 ms, as a final refit landing in a wrong basin would) predict the held-out blow worse
+    than the base model: the diagnosis withdraws it (nothing chosen, the verdict says so)
+    and ``write_model`` refuses. The data hold a drive of 3 ms, 120 Hz (a forte and a 24 N
+    blow, 0.15 s, seed 5), which the round finds; unpatched, it is chosen."""
+    path = tmp_path / "drive.h5"
+    softer = profiles.from_points([[0, 0], [0.02, 0], [0.1, 24], [0.3, 24]], name="24 N")
+    synth.synth(ActionModel(effects=[{"drive_dynamics": {"delay": 0.003, "bandwidth": 120}}]),
+                [profiles.load(FORTE), softer], path, seed=5, duration=0.15)
+    meas = ms.load(path)
+    real = dg._add_input_noise
+
+    def bad_final(final: dg.Candidate, *a: object, **k: object) -> None:
+        real(final, *a, **k)  # type: ignore[arg-type]
+        final.values["drive_dynamics.delay"] = 0.03
+
+    monkeypatch.setattr(dg, "_add_input_noise", bad_final)
+    monkeypatch.setattr(dg, "VALLEY_STARTS", ())  # no restarts: quicker, same first round
+    d = dg.diagnose(ActionModel(), meas, duration=0.15, candidates=["drive_dynamics"], jobs=2)
+    text = "\n".join(d.report_lines())
+    assert [c.name for c in d.withdrawn] == ["drive_dynamics"], text
+    assert d.chosen_names == [] and d.best is None, text
+    assert d.written_removal is not None and d.written_removal < 0, text
+    assert d.verdict().startswith("no effect is claimed: drive_dynamics"), text
+    with pytest.raises(InputError, match="nothing to write"):
+        dg.write_model(None, d, tmp_path / "out.yaml")
+    monkeypatch.setattr(dg, "_add_input_noise", real)
+    d = dg.diagnose(ActionModel(), meas, duration=0.15, candidates=["drive_dynamics"], jobs=2)
+    assert d.chosen_names == ["drive_dynamics"] and not d.withdrawn, "\n".join(d.report_lines())
+    assert d.written_removal is not None and d.written_removal > 0.5

@@ -14,6 +14,7 @@ from rig.analysis import measurement as ms
 from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
+from rig.analysis.diagnose.check import written_removal
 from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
 from rig.analysis.diagnose.notes import stability_notes
 from rig.analysis.diagnose.restarts import _restarts, _valleys
@@ -72,8 +73,13 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                          windows=windows)
     train_m, test_m = ft.split_masks(data)
     train, test = data.subset(train_m), data.subset(test_m)
-    split = (f"{len(measurements)} trials: fit on even, score on odd" if len(measurements) > 1
-             else "one trial: fit on even 2 ms blocks, score on odd ones")
+    held = ft.held_out_trials(data)
+    n_meas = len(measurements)
+    split = ("one trial: fit on even 2 ms blocks, score on odd ones" if n_meas < 2 else
+             f"{n_meas} trials: fit on even, score on odd" if held == list(range(1, n_meas, 2))
+             else f"{n_meas} trials of {len(set(ft.blows(measurements)))} blows: fit on "
+             f"trials {[i for i in range(n_meas) if i not in held]}, score on trials {held} "
+             "(other blows)")
     base = ft.rebuild(base, rate=measurements[0].rate)
     comp = cp.compare(measurements[0], [(label, base)], input, data.window(0), channels)
     sigs = sg.signatures(comp, comp.models[0], align_s)
@@ -175,6 +181,13 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
                           held_out_test == "noise")
+    withdrawn: list[Candidate] = []
+    written = None
+    if chosen:  # the model as written, on the held-out data: worse than the base, no claim
+        written = written_removal(chosen[-1], base, by_name, test,
+                                  {c: v[0] for c, v in base_test.items()})
+        if written is not None and not written > 0:
+            withdrawn, chosen = chosen, []
     if first:
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
@@ -190,7 +203,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                             align_s=align_s, channels=channels)
     for c in first:
         c.test_resid = None
-    for c in chosen:
+    for c in [*chosen, *withdrawn]:
         c.test_resid = None
     tau = sg.common_shift(comp, comp.models[0], align_s)
     notes.append(f"(signatures taken after shifting the model by {tau * 1e3:+.2f} ms as a "
@@ -199,4 +212,5 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         notes.append(f"the base model's simulation failed: {comp.models[0].result.message}")
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
-                     single, remainder=left, max_effects=1 if single else max_effects)
+                     single, remainder=left, max_effects=1 if single else max_effects,
+                     held_out_trials=held, withdrawn=withdrawn, written_removal=written)

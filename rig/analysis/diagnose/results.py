@@ -140,6 +140,11 @@ class Diagnosis:
     refs: dict[str, str] = field(default_factory=dict)     # user effect name -> file.py:Class
     remainder: rm.Remainder | None = None  # the final model's held-out residual vs its floor
     max_effects: int = 3
+    held_out_trials: list[int] = field(default_factory=list)  # none: blocks of one trial
+    # the chosen set, when the model as written predicted the held-out data worse than the
+    # base model (not claimed); written_removal: its share of the held-out error removed
+    withdrawn: list[Candidate] = field(default_factory=list)
+    written_removal: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
@@ -152,6 +157,9 @@ class Diagnosis:
                 "split": self.split, "single": self.single, "notes": list(self.notes),
                 "verdict": self.verdict(), "wall_s": self.wall_s,
                 "remainder": self.remainder.as_dict() if self.remainder is not None else None,
+                "withdrawn": [c.as_dict() for c in self.withdrawn],
+                "written_removal": self.written_removal,
+                "held_out_trials": list(self.held_out_trials),
                 "base_comparison": self.comparison.as_dict()}
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
@@ -168,6 +176,8 @@ class Diagnosis:
         """The first effect chosen (the top-ranked significant candidate)."""
         if self.chosen:
             return self.chosen[0]
+        if self.withdrawn:
+            return None
         return self.candidates[0] if self.candidates and self.candidates[0].significant else None
 
     @property
@@ -203,6 +213,19 @@ class Diagnosis:
             how = (f"removes {gain * 100:.1f} % of the held-out error" if gain >= 0
                    else "the held-out error is worse")
             return f"{head}{' + '.join(names)} ({how}): {vals}" + self._left_text()
+        if self.withdrawn:
+            w = self.withdrawn[-1]
+            which = " + ".join(w.effects or (w.name,))
+            worse = -(self.written_removal or 0.0)
+            floor = (f"; the base model's held-out residual: {rem.head()}"
+                     if rem is not None else "")
+            return (f"no effect is claimed: {which}, chosen on the training data, predicts the "
+                    f"held-out data worse than the base model at its final values as they "
+                    f"would be written ({worse * 100:.1f} % more held-out error; "
+                    f"{w.value_text(only_own=False)}){floor}. Its fit does not carry to "
+                    "data it did not see: more or other blows, or physics outside the "
+                    "library (a user effect, docs/effects.md, tried with --extra "
+                    "file.py:Class), may tell")
         if rem is not None and not rem.significant:
             return ("no missing effect can be shown: no candidate removes a significant share "
                     f"of the held-out error, and the base model's held-out residual is within "
@@ -268,7 +291,10 @@ class Diagnosis:
             for i, c in enumerate(self.chosen, 1):
                 lines.append(f"  step {i}: + {c.name}: {c.gain_text()} the set before it "
                              f"left (held-out p = {c.p_value:.2g})")
-            if not self.chosen:
+            for i, c in enumerate(self.withdrawn, 1):
+                lines.append(f"  step {i}: + {c.name}: {c.gain_text()} the set before it "
+                             f"left (held-out p = {c.p_value:.2g}); withdrawn, see below")
+            if not self.chosen and not self.withdrawn:
                 lines.append("  no effect added")
         lines.append(self.verdict())
         lines += self.correlation_lines()
