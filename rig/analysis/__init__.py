@@ -6,7 +6,7 @@
                     per phase of the blow and per event
     signature.py    what a residual looks like: bias, lag, oscillation, timing
     fit.py          least-squares fits of model or effect parameters
-    diagnose.py     which library effect removes the residual (held-out ranking)
+    diagnose/       which library effect removes the residual (held-out ranking)
     synth.py        measurement-like run files from a hidden truth model
     report.py       self-contained interactive HTML reports (Plotly)
 """

@@ -338,13 +338,61 @@ class Data:
         return {c: (a[0] / a[2], a[1] / a[2]) for c, a in acc.items() if a[2] > 0}
 
 
+BLOW_TOLERANCE = 0.1  # trials whose force peak and impulse agree this closely: one blow
+
+
+def blows(measurements: Sequence[Measurement], tolerance: float = BLOW_TOLERANCE
+          ) -> list[int]:
+    """Which blow each trial is (0, 1, ... in order of first appearance): trials whose
+    measured force has the same peak and impulse (over the first 0.4 s, the blow) within
+    ``tolerance`` are repeats of one blow. Every trial its own blow when a trial has no
+    force channel."""
+    keys: list[tuple[float, float]] = []
+    for m in measurements:
+        f = m.channels.get("force")
+        if f is None:
+            return list(range(len(measurements)))
+        t = np.asarray(m.time, float)
+        sel = (t >= 0) & (t <= 0.4)
+        ff = np.asarray(f, float)[sel] if sel.sum() >= 2 else np.asarray(f, float)
+        tt = t[sel] if sel.sum() >= 2 else t
+        dt = float(np.median(np.diff(tt))) if tt.size >= 2 else 0.0
+        keys.append((float(np.max(ff)), float(np.sum(np.clip(ff, 0, None))) * dt))
+    out: list[int] = []
+    reps: list[tuple[float, float]] = []
+    for k in keys:
+        for j, r in enumerate(reps):
+            if all(abs(a - b) <= tolerance * max(abs(a), abs(b), 1e-12)
+                   for a, b in zip(k, r, strict=True)):
+                out.append(j)
+                break
+        else:
+            reps.append(k)
+            out.append(len(reps) - 1)
+    return out
+
+
+def held_out_trials(data: Data) -> list[int]:
+    """The trials ``split_masks`` holds out (none with one trial: blocks of it are)."""
+    n = len(data.measurements)
+    if n < 2:
+        return []
+    group = blows(data.measurements)
+    if len(set(group)) >= 2:
+        return [i for i in range(n) if group[i] % 2 == 1]
+    return [i for i in range(n) if i % 2 == 1]
+
+
 def split_masks(data: Data, block_s: float = 0.002) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Training and held-out samples: alternate trials when there are several, else
-    alternate blocks of ``block_s`` within the one trial."""
+    """Training and held-out samples: with several blows (``blows``), the trials of every
+    other blow are held out, so that the scores say how a model fitted on some blows
+    predicts another; with several trials of one blow, alternate trials; else alternate
+    blocks of ``block_s`` within the one trial."""
     n = len(data.measurements)
     if n >= 2:
-        train = [np.full(t.shape, i % 2 == 0) for i, t in enumerate(data.time)]
-        test = [np.full(t.shape, i % 2 == 1) for i, t in enumerate(data.time)]
+        held = set(held_out_trials(data))
+        train = [np.full(t.shape, i not in held) for i, t in enumerate(data.time)]
+        test = [np.full(t.shape, i in held) for i, t in enumerate(data.time)]
         return train, test
     t = data.time[0]
     block = np.floor((t - t[0]) / block_s).astype(int) % 2 == 0

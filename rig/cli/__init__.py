@@ -502,7 +502,9 @@ def diagnose_cmd(
         console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)
     if write is not None and diag.best is None:
-        err.print(f"no candidate explains the residual significantly; {write} was not written",
+        why = ("the chosen set predicts the held-out data worse than the base model"
+               if diag.withdrawn else "no candidate explains the residual significantly")
+        err.print(f"{why}; {write} was not written",
                   markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(code=1)
     if write is not None:

@@ -80,7 +80,7 @@ def write_report(diag: dg.Diagnosis, model: ActionModel, model_file: Path | None
         files.append("(rig diagnose: the chosen effects at their jointly fitted values)")
     comps = [diag.comparison if len(models) == 1 and i == 0 else
              cp.compare(m, models, input, duration, channels) for i, m in enumerate(meas)]
-    held = list(range(1, len(meas), 2)) if len(meas) > 1 else []
+    held = list(diag.held_out_trials)
     prov = report.Provenance.of(run, [(lb, f, m) for (lb, m), f in
                                       zip(models, files, strict=True)])
     return report.write(comps, out, title=f"rig diagnose: {Path(run).name}", diagnosis=diag,

@@ -1,0 +1,216 @@
+"""``diagnose``: the base model's residual, the rounds of the search, the final set's
+restarts, valleys and remainder."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rig.analysis import compare as cp
+from rig.analysis import fit as ft
+from rig.analysis import measurement as ms
+from rig.analysis import remainder as rm
+from rig.analysis import signature as sg
+from rig.analysis import stats
+from rig.analysis.diagnose.check import written_removal
+from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
+from rig.analysis.diagnose.notes import stability_notes
+from rig.analysis.diagnose.restarts import _restarts, _valleys
+from rig.analysis.diagnose.results import Candidate, Diagnosis, rank
+from rig.analysis.diagnose.search import (
+    MAX_READOPT,
+    State,
+    _add_input_noise,
+    _backward,
+    _converge,
+    _noise_draws,
+    _pick,
+    _round,
+    _unneeded,
+    candidates_for,
+    held_out_p,
+    judge,
+)
+from rig.analysis.measurement import Measurement
+from rig.errors import InputError
+from rig.model.action import ActionModel
+from rig.model.effects import Effect
+
+if TYPE_CHECKING:
+    from rig.executor import Executor
+
+
+def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
+             duration: float | None = None, channels: Sequence[str] | None = None,
+             candidates: Sequence[str] | None = None, extra: Sequence[type[Effect]] = (),
+             jobs: int | None = None, max_nfev: int = 10, scan: int = 4, min_gain: float = 0.2,
+             min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
+             single: bool = False, max_effects: int = 3, alpha: float = 0.05,
+             z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
+             final_nfev: int = 40, executor: Executor | None = None,
+             progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
+    """Signatures of the base model's residual, each candidate alone, and (unless
+    ``single``) the jointly fitted set of effects a forward selection chooses."""
+    import time as _time
+
+    if not measurements:
+        raise InputError("measurements: expected at least one trial")
+    if held_out_test not in ("noise", "hac"):
+        raise InputError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
+    wall0 = _time.perf_counter()
+    notes: list[str] = []
+    windows: list[float | None] | None = None
+    if duration is None:  # each trial's blow, bounded by its events
+        bounds = [ms.blow_window(m) for m in measurements]
+        windows = [b[0] for b in bounds]
+        notes.append("window: " + "; ".join(
+            f"{m.label} 0-{w:.3f} s ({why})" for m, (w, why) in zip(measurements, bounds,
+                                                                     strict=True))
+            + " (--duration S for the first S s of every trial)")
+    data = ft.Data.build(measurements, input, duration, channels, align_s=align_s,
+                         windows=windows)
+    train_m, test_m = ft.split_masks(data)
+    train, test = data.subset(train_m), data.subset(test_m)
+    held = ft.held_out_trials(data)
+    n_meas = len(measurements)
+    split = ("one trial: fit on even 2 ms blocks, score on odd ones" if n_meas < 2 else
+             f"{n_meas} trials: fit on even, score on odd" if held == list(range(1, n_meas, 2))
+             else f"{n_meas} trials of {len(set(ft.blows(measurements)))} blows: fit on "
+             f"trials {[i for i in range(n_meas) if i not in held]}, score on trials {held} "
+             "(other blows)")
+    base = ft.rebuild(base, rate=measurements[0].rate)
+    comp = cp.compare(measurements[0], [(label, base)], input, data.window(0), channels)
+    sigs = sg.signatures(comp, comp.models[0], align_s)
+    base_preds = test.simulate(base)
+    base_test = test.channel_ms(base_preds)
+    base_resid = test.residuals(base_preds)
+    state = State([], base_resid, base_test,
+                  float(np.mean(train.residuals(train.simulate(base)) ** 2)),
+                  _noise_draws(base, test, held_out_test))
+    classes = candidates_for(base, candidates, extra)
+    implies = {cls.name: cls.implies for cls in classes}
+    by_name = {cls.name: cls for cls in classes}
+    ctx = {"base": base, "train": train, "test": test, "max_nfev": max_nfev, "scan": scan,
+           "min_gain": min_gain, "min_noise_gain": min_noise_gain}
+    py_note = ft.python_integrator_note(base, classes)
+    if py_note:
+        notes.append(py_note)
+    chosen: list[Candidate] = []
+    first: list[Candidate] = []
+    remaining = list(classes)
+    readopted = 0
+
+    def state_of(c: Candidate) -> State:
+        now = [_instance(c, by_name[n]) for n in c.effects or (c.name,)]
+        return State(now, c.test_resid if c.test_resid is not None else state.test_resid,
+                     {k: (c.test_error[k], c.test_noise[k]) for k in base_test},
+                     c.train_cost,
+                     _noise_draws(ft.rebuild(base, now, rate=test.measurements[0].rate),
+                                  test, held_out_test) if remaining else None)
+
+    def better_note(new: Candidate, old: Candidate) -> str:
+        moved = ", ".join(f"{k} {stats.short(old.values[k])} -> {stats.short(v)}"
+                          for k, v in new.values.items()
+                          if k in old.values and v != old.values[k])
+        return (f"the effects chosen so far fit better at the values a candidate's joint "
+                f"refit found for them ({moved}); the round was fitted again from there")
+
+    from rig.executor import LocalExecutor
+
+    ex = executor if executor is not None else LocalExecutor(jobs)
+    try:
+        while remaining and len(chosen) < (1 if single else max_effects):
+            out = _round(remaining, {**ctx, "state": state}, ex, progress,
+                         "fitting candidates" if not chosen else
+                         f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
+            level = alpha / max(1, len(out))
+            for c in out:
+                judge(c, level, min_gain, min_noise_gain, z_off)
+            beats = held_out_p(base, by_name, test, held_out_test == "noise")
+            out = rank(out, implies, min_gain, beats, level)
+            # an effect implying another is named only if it beats it (rank put it after)
+            best, better = _pick(out, chosen[-1] if chosen else None, base, by_name, train,
+                                 test, state, level, readopted < MAX_READOPT)
+            out = rank(out, implies, min_gain, beats, level)  # a refused newcomer goes down
+            if better is not None:
+                # the set so far fits better at the values a candidate's joint refit found
+                # for it (the candidate itself adds nothing): take them and fit the round
+                # again, so that no candidate is credited with the set's own misfit
+                readopted += 1
+                _converge(better, base, by_name, train, test, final_nfev)
+                notes.append(f"round {len(chosen) + 1}: {better_note(better, chosen[-1])}")
+                chosen[-1] = better
+                state = state_of(better)
+                continue
+            if not first:
+                first = out
+            if best is None or single:
+                if best is not None:
+                    chosen.append(best)
+                break
+            _converge(best, base, by_name, train, test, final_nfev)
+            chosen.append(best)
+            cls_b = by_name[best.name]
+            remaining = [c for c in remaining if c is not cls_b
+                         and c.name not in cls_b.implies]
+            state = state_of(best)
+    finally:
+        if executor is None:
+            ex.close()
+    if chosen:
+        # a set that delays or filters the input force: its final values and uncertainties
+        # without the whole-blow alignment, a shift of up to align_s per trial that trades
+        # with its lag (a drive's delay was fitted 0.5 ms off at +-0.1 ms with it); other
+        # sets keep it (it takes the input noise's timing jitter out of their fit)
+        train0, test0 = train, test
+        if align_s > 0 and any(_moves_input(by_name[n]) for n in chosen[-1].effects
+                               or (chosen[-1].name,)):
+            train0, test0 = replace(train, align_s=0.0), replace(test, align_s=0.0)
+            _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+        minima, note = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
+        notes += note
+        drop = _unneeded(chosen, base, by_name, train0, test0, alpha, held_out_test == "noise")
+        if drop is not None:
+            name, p, chosen[:] = drop
+            _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+            minima, note = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
+            notes += [f"{name} dropped: at the final fit the other effects do as well "
+                      f"without it on the held-out data (p = {p:.2g} > {alpha:.2g})", *note]
+        _add_input_noise(chosen[-1], base, by_name, train0)
+        notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
+                          held_out_test == "noise")
+    withdrawn: list[Candidate] = []
+    written = None
+    if chosen:  # the model as written, on the held-out data: worse than the base, no claim
+        written = written_removal(chosen[-1], base, by_name, test,
+                                  {c: v[0] for c, v in base_test.items()})
+        if written is not None and not written > 0:
+            withdrawn, chosen = chosen, []
+    if first:
+        notes += stability_notes(first, base_resid, test)
+    if backward and len(chosen) >= 2:
+        notes += _backward(chosen, by_name, ctx, base_test, alpha)
+    rate = measurements[0].rate
+    if chosen:
+        names = list(chosen[-1].effects or (chosen[-1].name,))
+        left = rm.remainder(_set_model(base, by_name, names, chosen[-1].values, rate), test,
+                            measurements, of=" + ".join(names), alpha=alpha, align_s=align_s,
+                            channels=channels, acts={n: by_name[n].signature for n in names})
+    else:
+        left = rm.remainder(base, test, measurements, of="base model", alpha=alpha,
+                            align_s=align_s, channels=channels)
+    for c in first:
+        c.test_resid = None
+    for c in [*chosen, *withdrawn]:
+        c.test_resid = None
+    tau = sg.common_shift(comp, comp.models[0], align_s)
+    notes.append(f"(signatures taken after shifting the model by {tau * 1e3:+.2f} ms as a "
+                 f"whole; at most +-{align_s * 1e3:.1f} ms)")
+    if not comp.models[0].ok:
+        notes.append(f"the base model's simulation failed: {comp.models[0].result.message}")
+    return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
+                     min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
+                     single, remainder=left, max_effects=1 if single else max_effects,
+                     held_out_trials=held, withdrawn=withdrawn, written_removal=written)
