@@ -449,6 +449,16 @@ def table(summary: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def reserved_banner(seeds: Sequence[int]) -> str:
+    """The warning printed when the seeds include reserved ones ("" when they do not)."""
+    hit = [s for s in seeds if s in RESERVED]
+    if not hit:
+        return ""
+    return ("!" * 78 + f"\n!! RESERVED seeds {RESERVED.start}-{RESERVED.stop - 1} "
+            f"({len(hit)} of them here): run them only to report a method's figures, never "
+            "to tune it\n" + "!" * 78)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--first-seed", type=int, default=0)
@@ -467,9 +477,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                                                 if r.get("score")]))))
         return
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    if any(s in RESERVED for s in seeds):
-        banner = ("!" * 78 + "\n!! RESERVED seeds 1000-1099: run only to report a method's "
-                  "figures, never to tune it\n" + "!" * 78)
+    banner = reserved_banner(seeds)
+    if banner:
         print(banner, flush=True)
         print(banner, file=sys.stderr, flush=True)
     scores: list[Score] = []
