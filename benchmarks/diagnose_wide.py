@@ -429,7 +429,11 @@ def summarize(scores: Sequence[Score]) -> dict[str, Any]:
             "false_alarm": rate([s.alarm for s in scores]),
             "cover95": (sum(s.covered for s in scores), checked),
             "written_worse": rate([s.written_worse for s in scores]),
-            "median_s": statistics.median(times) if times else None}
+            "median_s": statistics.median(times) if times else None,
+            # where it misses: the exact share by the number of hidden library effects
+            "exact_by_hidden": {str(k): (sum(s.exact for s in scores if len(s.hidden) == k),
+                                         sum(len(s.hidden) == k for s in scores))
+                                for k in range(len(N_HIDDEN_P))}}
 
 
 TARGETS = {"exact": ">= 0.90", "top1": ">= 0.95", "outside_credit": "<= 0.05",
@@ -446,6 +450,10 @@ def table(summary: Mapping[str, Any]) -> list[str]:
             continue
         n, m = v
         lines.append(f"{k:<16}{f'{n}/{m}':>12}{(f'{n / m:.2f}' if m else '-'):>8}  {target}")
+    by = summary.get("exact_by_hidden", {})
+    if by:
+        lines.append("exact by hidden library effects: " + ", ".join(
+            f"{k}: {n}/{m}" for k, (n, m) in by.items()))
     return lines
 
 

@@ -242,9 +242,11 @@ def test_summary_counts_each_figure_over_the_seeds_it_applies_to() -> None:
     assert got["false_alarm"] == (1, 2) and got["outside_credit"] == (1, 1)
     assert got["cover95"] == (1, 1) and got["written_worse"] == (1, 2)
     assert got["median_s"] == 30.0
+    assert got["exact_by_hidden"] == {"0": (1, 3), "1": (1, 2), "2": (0, 0), "3": (0, 0)}
     lines = wide.table(got)
     assert any(line.startswith("exact") and "2/5" in line and "0.40" in line
                for line in lines)
+    assert lines[-1] == "exact by hidden library effects: 0: 1/3, 1: 1/2, 2: 0/0, 3: 0/0"
 
 
 def test_written_model_check_tells_better_from_worse(tmp_path: Path) -> None:
