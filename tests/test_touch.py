@@ -62,7 +62,8 @@ def _potential(model: ActionModel, y: np.ndarray) -> float:
     sign = tree["springs_sign"]["jack"]
     pot -= sign * tree["springs"]["jack_torque"] * y[k.QJ]
     rep = tree["springs"]["repetition"]
-    pot += 0.5 * rep["k"] * (y[k.QR] - rep["theta0"]) ** 2
+    theta0 = rep["theta0"] + tree["repetition_spring"]["regulation"]
+    pot += 0.5 * rep["k"] * (y[k.QR] - theta0) ** 2
     return pot + _elastic_energy(model, y)
 
 
@@ -267,8 +268,8 @@ def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
 def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
     """The dynamic answer: a slow force ramp (0 -> 70 g in 4 s) on the model whose friction
     thresholds are lowered so that its regularised laws act nearly as Coulomb friction at
-    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force just
-    under the static down force there, and closer to it the lower the thresholds."""
+    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force near
+    the static down force there, and closer to it the lower the thresholds."""
     from rig import profiles
 
     ramp = profiles.from_points([[0.0, 0.0], [4.0, 0.070 * touch.G0]], name="ramp")
@@ -287,17 +288,54 @@ def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
         res = model.simulate(ramp)
         i = int(np.argmax(res.channels["key_dip"] > static.dip_m[0]))
         gaps.append(static.down_n[0] - res.channels["force"][i])
-    assert 0 < gaps[1] < gaps[0]
-    assert touch.grams(gaps[1]) < 2.0
+    # closer the lower the thresholds: under the static force at 100x, 0.3 g over it at
+    # 500x (the dynamic law keeps Eq. 3.6's static hump B1 at creep speeds; the static
+    # solve takes the kinetic A)
+    assert 0 < abs(gaps[1]) < gaps[0]
+    assert touch.grams(abs(gaps[1])) < 2.0
 
 
-@pytest.mark.slow
-def test_no_sliding_equilibrium_is_refused_naming_the_contact():
-    """A heavier hammer and more knuckle friction: on the return the knuckle's friction turns
-    the jack off its whippen stop; rig touch says where instead of printing a number."""
-    with pytest.raises(InputError, match=r"up press at [0-9.]+ mm .*contact 5 \(whippen-jack\) "
-                                         r"opens"):
-        touch.measure(model_with({"bodies.hammer_head.mass": 0.009, "contacts.7.A": 0.2}))
+def _dissipated(model: ActionModel, st: touch._Statics, y: np.ndarray, force: float) -> float:
+    """Energy (J) the friction of every contact and pin dissipates in the press's step that
+    ends at y (its speeds are the step's increments over touch.STEP_S): force x slip."""
+    co = np.zeros((k.N_CONTACT_OUT, 1, model.packed.n_contacts))
+    k.sample_outputs(st.sliding, model.workspace(), y[None, :], np.array([force]),
+                     model._head_pt, model._gauge, np.zeros((k.N_X, 1)), co)
+    out = float(np.sum(np.abs(co[k.O_FT, 0] * co[k.O_SLIP, 0])))
+    jf = st.sliding.jf
+    for j, c in enumerate(k.JOINT_COORD):
+        if model.active[c]:
+            w = y[k.NQ + c]
+            out += abs(k.joint_torque(w, jf[j, 0], 0.0, 0.0, jf[j, 3]) * w)
+    return out * touch.STEP_S
+
+
+@pytest.mark.parametrize("regulation", [0.0, -0.172])
+def test_the_presses_balance_work_potential_and_friction(regulation):
+    """Virtual work with friction, step by step along both presses: the key force's work
+    over each step equals the rise of the potential energy (gravity, springs, felts:
+    written out in this file) plus what every contact's and pin's friction dissipates
+    (force x slip, from the kernel's outputs). On the thesis's spring preload and on the
+    regulated one, where on the return the knuckle's friction drags the jack off its
+    whippen stop (contact 5 opens): the friction then turns with the slip it makes."""
+    model = model_with({"repetition_spring.regulation": regulation})
+    res = touch.measure(model)
+    st = touch._Statics(model)
+    if regulation:
+        assert "up press, contact 5" in res.method["contacts_changed"]
+    assert res.method["worst_residual"] < touch.FORCE_TOL
+    presses = (("down", res.down_states[:-1], res.down_n, res.dip_m),
+               ("up", res.up_states[::-1], res.up_n[::-1], res.dip_m[::-1]))
+    for way, states, forces, dips in presses:
+        work = (forces[1:] + forces[:-1]) / 2 * np.diff(dips)
+        rise = np.diff([_potential(model, y) for y in states])
+        lost = [_dissipated(model, st, y, f) for y, f in zip(states, forces, strict=True)]
+        lost = (np.array(lost[1:]) + np.array(lost[:-1])) / 2
+        # each step within 0.5 % but where a joint or contact changes between sticking and
+        # sliding in it (its dissipation is then no straight line); the stroke within 1 %
+        err = (work - rise - lost) / lost
+        assert np.median(np.abs(err)) < 5e-3, way
+        assert np.sum(work - rise - lost) == pytest.approx(0.0, abs=1e-2 * np.sum(lost)), way
 
 
 @pytest.mark.slow
