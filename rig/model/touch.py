@@ -61,6 +61,7 @@ SLIP_TOL_M = 1e-10  # a contact slipping less than this in a step sticks (Coulom
 TURN_TOL_RAD = 1e-9  # a pin turning less than this in a step sticks
 NEWTON_TOL = 1e-12  # N m: Newton's steps stop under this imbalance
 FORCE_TOL = 1e-8  # N m: the largest generalized-force imbalance a step with friction may leave
+SPLITS = 3  # a step that finds no equilibrium is halved up to this many times
 LADDER = (1e4, 1e3, 1e2, 1e1, 1.0)  # the tolerances' continuation, widest first
 # contacts that end the touch stroke when they close (ids of rig/data/action-parameters.yaml)
 STROKE_STOPS = {2: "key meets the front punching", 8: "jack toe meets the let-off button",
@@ -525,8 +526,8 @@ def measure(model: ActionModel) -> Touch:
     hint = None
     for i, d_i in enumerate(down_at):
         guess = prev + (guesses[i] - prev_ref)
-        y_i, f_i, err = st.step(float(d_i), prev, guess, f_prev + ref_f[i] - ref_prev,
-                                hint if i > 1 else None)
+        y_i, f_i, err = _advance(st, float(down_at[i - 1]) if i else 0.0, float(d_i), prev,
+                                 guess, f_prev + ref_f[i] - ref_prev, hint if i > 1 else None)
         hint = np.r_[y_i[st.coords] - prev[st.coords], f_i]
         worst = max(worst, err)
         if err > FORCE_TOL and not failed:
@@ -539,8 +540,8 @@ def measure(model: ActionModel) -> Touch:
     hint = None  # (the press turns: what stuck may slip now, and the other way)
     for i in range(n - 1, -1, -1):
         guess = prev + (guesses[i] - prev_ref)
-        y_i, f_i, err = st.step(float(dip[i]), prev, guess, f_prev + ref_f[i] - ref_prev,
-                                hint if i < n - 2 else None)
+        y_i, f_i, err = _advance(st, float(down_at[i + 1]), float(dip[i]), prev, guess,
+                                 f_prev + ref_f[i] - ref_prev, hint if i < n - 2 else None)
         hint = np.r_[y_i[st.coords] - prev[st.coords], f_i]
         worst = max(worst, err)
         if err > FORCE_TOL and not failed:
@@ -586,6 +587,27 @@ def measure(model: ActionModel) -> Touch:
                          "mid_stroke_dip_m": float(dip[mid]),
                          "down_stroke_at_dip_m": float(dip[int(np.argmax(down))]),
                          "up_stroke_at_dip_m": float(dip[int(np.argmin(up))])})
+
+
+def _advance(st: _Statics, d_from: float, d_to: float, prev: np.ndarray, guess: np.ndarray,
+             f0: float, hint: np.ndarray | None, depth: int = 0) -> tuple[np.ndarray, float,
+                                                                           float]:
+    """The press's step from ``prev`` (at ``d_from``) to ``d_to``; a step that finds no
+    equilibrium is taken as two half steps (down to an eighth), as a slower press would
+    take it. (The state's speeds are then its last part's increments.)"""
+    y, f, err = st.step(d_to, prev, guess, f0, hint)
+    if err <= FORCE_TOL or depth >= SPLITS:
+        return y, f, err
+    half = None if hint is None else np.r_[hint[:-1] / 2, hint[-1]]
+    d_mid = (d_from + d_to) / 2
+    y_mid, f_mid, e_mid = _advance(st, d_from, d_mid, prev, prev + (guess - prev) / 2, f0, half,
+                                   depth + 1)
+    if e_mid > FORCE_TOL:
+        return y, f, err
+    c = st.coords
+    y2, f2, e2 = _advance(st, d_mid, d_to, y_mid, y_mid + (guess - prev) / 2, f_mid,
+                          np.r_[y_mid[c] - prev[c], f_mid], depth + 1)
+    return (y2, f2, e2) if e2 < err else (y, f, err)
 
 
 def _changes(st: _Statics, dip: np.ndarray, down: list[np.ndarray],
