@@ -129,6 +129,49 @@ def test_key_inertia_is_felt_through_the_front_arm_squared(base):
     assert heavier.figures["down_weight"] == pytest.approx(base.figures["down_weight"])
     assert heavier.figures["inertia_mass"] - base.figures["inertia_mass"] == pytest.approx(
         added / base.key_front_radius_m**2 * 1e3, rel=0.01)
+    # the force that accelerates the key front at a (on top of the static one): the key's
+    # added inertia needs added x a / r^2 more (r the front's arm), by hand
+    a = 10.0
+    assert touch.acceleration_force(heavier, a) - touch.acceleration_force(base, a) == \
+        pytest.approx(added * a / base.key_front_radius_m**2, rel=0.01)
+    assert touch.acceleration_force(base, a) == pytest.approx(
+        base.figures["inertia_mass"] / 1e3 * a)
+
+
+def test_the_slow_press_plot_is_a_page_of_the_stroke_and_is_not_overwritten(tmp_path, base):
+    """rig touch --plot: one Plotly figure of the down, up and frictionless force (grams)
+    against the dip (mm); an existing file is kept unless --force."""
+    import re
+
+    from rig.services import touch as svc
+
+    out = tmp_path / "touch.html"
+    svc.write_plot(base, out, "base model", force=False)
+    text = out.read_text()
+    assert text.startswith("<!DOCTYPE html>") and "data-figures='1'" in text
+    call = re.search(r'Plotly\.newPlot\(\s*"touch-stroke",\s*(\[.*?\]),\s*\{', text, re.S)
+    assert call is not None
+    traces = {t["name"]: t for t in json.loads(call.group(1))}
+    assert set(traces) == {"down press", "up press", "frictionless"}
+    for name, force in (("down press", base.down_n), ("up press", base.up_n),
+                        ("frictionless", base.frictionless_n)):
+        np.testing.assert_allclose(_plotted(traces[name]["x"]), base.dip_m * 1e3)
+        np.testing.assert_allclose(_plotted(traces[name]["y"]),
+                                   [touch.grams(f) for f in force])
+    with pytest.raises(InputError, match="exists"):
+        svc.write_plot(base, out, "again", force=False)
+    assert out.read_text() == text
+    svc.write_plot(base, out, "again", force=True)
+    assert "again" in out.read_text()
+
+
+def _plotted(values: object) -> np.ndarray:
+    """A Plotly trace's array: a list, or a typed array ({"dtype", "bdata"} in base64)."""
+    import base64
+
+    if isinstance(values, dict):
+        return np.frombuffer(base64.b64decode(values["bdata"]), dtype=values["dtype"])
+    return np.asarray(values, dtype=float)
 
 
 def test_heavier_hammer_raises_weights_by_the_geometry(frictionless, base):
@@ -228,9 +271,17 @@ def test_cli_prints_and_emits_json(tmp_path, base):
     jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.touch/1"))
     assert doc["figures"]["down_weight"]["value"] == pytest.approx(base.figures["down_weight"])
     assert doc["figures"]["down_weight"]["newtons"] == pytest.approx(base.newtons["down_weight"])
-    text = _rig("touch")
+    page = tmp_path / "touch.html"
+    text = _rig("touch", "--plot", str(page), "--accel", "5")
     assert text.returncode == 0, text.stderr
     assert any(ln.startswith("down_weight") for ln in text.stdout.splitlines())
+    push = base.figures["inertia_mass"] / 1e3 * 5  # N: the mass felt x 5 m/s^2
+    assert f"5 m/s^2 at the key front needs {push:.3f} N" in text.stdout
+    assert doc["acceleration"]["force_N"] == pytest.approx(base.figures["inertia_mass"] / 100)
+    assert page.read_text().startswith("<!DOCTYPE html>")
+    again = _rig("touch", "--plot", str(page))
+    assert again.returncode == 2 and "exists" in again.stderr
+    assert len(again.stderr.strip().splitlines()) == 1
     bad = tmp_path / "m.yaml"
     bad.write_text("parameters: {contacts: {1: {A: oops}}}\n")
     refused = _rig("touch", "--model", str(bad))

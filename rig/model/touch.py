@@ -130,6 +130,13 @@ class Touch:
         }
 
 
+def acceleration_force(result: Touch, accel: float) -> float:
+    """Force (N) at the key front, on top of the static one, that accelerates the key front
+    at ``accel`` m/s^2 mid-stroke from rest along the press: ``inertia_mass`` x accel (the
+    velocity-squared terms vanish at rest)."""
+    return result.figures["inertia_mass"] * 1e-3 * accel
+
+
 def grams(force_n: float) -> float:
     """Grams-force of a force in N (a technician's weight of that many grams at G0)."""
     return force_n / G0 * 1e3
