@@ -96,6 +96,25 @@ def test_frictionless_action_balances_by_virtual_work(frictionless):
     assert res.figures["up_weight_stroke"] == pytest.approx(touch.grams(res.frictionless_n.min()))
 
 
+def test_key_pin_friction_alone_adds_its_torque_over_the_front_arm_exactly():
+    """An exact answer by hand: with friction at the key's balance pin only (E) the key
+    front, held at each dip, turns the key to the same angle as without friction, so the
+    rest of the action takes the same state and the key force changes by the pin's torque
+    over the key front's horizontal arm at that angle, r = cos(th) px - sin(th) py: up by
+    E / r on the way down, down by E / r on the way up, at every dip (the first step from
+    rest included, where the back felt and the hammer rail let go)."""
+    e_key = 0.0122
+    model = model_with({**FRICTION_OFF, "joint_friction.key.E": e_key})
+    res = touch.measure(model)
+    px, py = model.params.tree["key_input"]["point"]
+    th = np.array([y[k.QK] for y in _path(model, res)])
+    arm = np.cos(th) * px - np.sin(th) * py
+    np.testing.assert_allclose(res.down_n - res.frictionless_n, e_key / arm, rtol=1e-6)
+    np.testing.assert_allclose(res.frictionless_n - res.up_n, e_key / arm, rtol=1e-6)
+    assert res.figures["friction"] == pytest.approx(touch.grams(e_key / arm[
+        int(np.argmin(np.abs(res.dip_m - res.method["mid_stroke_dip_m"])))]), rel=1e-6)
+
+
 def test_key_front_lead_moves_balance_by_its_moment(base):
     """10 g of lead on the line from the balance pin to the key front, halfway out: every
     weight (friction included) drops by 10 g x 1/2 (its moment over the front's arm)."""
