@@ -1,7 +1,6 @@
 """No second strike while the key is held (issue 38): a grid of blows, forte to pianissimo,
-on the model with its repetition spring regulated as technicians do (``REGULATED``:
-``repetition_spring.regulation``; the shipped default keeps the thesis's preload for now,
-docs/model.md, "The repetition spring regulated").
+on the default model, whose repetition spring is regulated as technicians do (``REGULATED``:
+``repetition_spring.regulation``; docs/model.md, "The repetition spring regulated").
 
 A real grand action, its key held down, strikes once: the back check holds the hammer, or
 the hammer (a soft blow, or one the check lets go when the finger eases) rises on the
@@ -56,8 +55,9 @@ def strikes(res: SimResult) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def models() -> dict[str, ActionModel]:
-    params = Parameters.default().set("repetition_spring.regulation", REGULATED)
-    return {"rigid": ActionModel(params), "full": ActionModel(params, effects=list(FULL))}
+    # the default models: the shipped regulation is this test's
+    assert Parameters.default().get("repetition_spring.regulation") == REGULATED
+    return {"rigid": ActionModel(), "full": ActionModel(effects=list(FULL))}
 
 
 def _check(model: ActionModel, rise: float, peak: float, held: float) -> None:

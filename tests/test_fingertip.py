@@ -99,9 +99,10 @@ def test_the_pulp_creeps_along_eq_3_10_while_the_bone_holds(press) -> None:
     rate = v["a2"] * np.exp(v["b2"] * x2) * x2 / (v["a3"] * np.exp(v["b3"] * x1))  # mm/s
     assert np.gradient(x1, t)[1:-1] == pytest.approx(rate[1:-1], rel=0.02)
     assert np.all(np.diff(x1) > 0)
-    # 21.6 -> 20.9 N in the 80 ms (-3.1 %; more, before the back check held the hammer:
-    # the hammer creeping off the check unloaded the key as well)
-    assert ch["force"][hold][-1] < 0.98 * ch["force"][hold][0]
+    # 22.7 -> 22.3 N in the 80 ms (-1.9 %; -3.1 %, 21.6 -> 20.9 N, with the thesis's
+    # repetition-spring preload, docs/model.md; more, before the back check held the
+    # hammer: the hammer creeping off the check unloaded the key as well)
+    assert ch["force"][hold][-1] < 0.99 * ch["force"][hold][0]
 
 
 def test_motion_profiles_are_refused_where_a_force_is_needed(tmp_path: Path) -> None:

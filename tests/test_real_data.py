@@ -194,12 +194,10 @@ def test_events_out_of_the_order_of_a_blow_are_flagged():
 def test_with_the_repetition_spring_regulated_every_single_stroke_strikes_once(tmp_path):
     # the real hammer struck once in each of the six single strokes and was held; with the
     # thesis's spring preload the model struck again in four of them (71-930 ms after the
-    # first strike); regulated as technicians do (docs/model.md) it strikes once in each
-    from rig.params import Parameters
-
+    # first strike); regulated as technicians do (the default, docs/model.md) it strikes
+    # once in each
     run = _import(tmp_path)
-    params = Parameters.default().set("repetition_spring.regulation", -0.172)
-    model = ActionModel(params)
+    model = ActionModel()
     for k in (2, 3, 4, 5, 6, 15):
         meas = ms.load(run, [k], input="motion")[0]
         assert real_strikes(meas).size == 1

@@ -52,8 +52,10 @@ def test_shipped_model_regulation_report():
     assert set(shown) == set(regulation.FIGURES)
     assert shown["hammer_rest"] == pytest.approx(49.0, abs=0.05)  # thesis 48.0 mm
     assert shown["key_dip"] == pytest.approx(10.0, abs=0.1)
-    assert shown["let_off"] == pytest.approx(3.7, abs=0.1)  # thesis about 1 mm
-    assert 4.3 <= shown["toe_meets_button"] <= 4.7
+    # (3.7 mm and 4.5 mm with the thesis's repetition-spring preload, which pushes the
+    # knuckle harder against the jack; the spring is regulated, docs/model.md)
+    assert shown["let_off"] == pytest.approx(3.55, abs=0.1)  # thesis about 1 mm
+    assert 4.5 <= shown["toe_meets_button"] <= 4.9
     assert all(math.isfinite(v) for v in shown.values())
 
 

@@ -62,7 +62,8 @@ def _potential(model: ActionModel, y: np.ndarray) -> float:
     sign = tree["springs_sign"]["jack"]
     pot -= sign * tree["springs"]["jack_torque"] * y[k.QJ]
     rep = tree["springs"]["repetition"]
-    pot += 0.5 * rep["k"] * (y[k.QR] - rep["theta0"]) ** 2
+    theta0 = rep["theta0"] + tree["repetition_spring"]["regulation"]
+    pot += 0.5 * rep["k"] * (y[k.QR] - theta0) ** 2
     return pot + _elastic_energy(model, y)
 
 
@@ -93,6 +94,25 @@ def test_frictionless_action_balances_by_virtual_work(frictionless):
     assert res.figures["down_weight_stroke"] == pytest.approx(
         touch.grams(res.frictionless_n.max()))
     assert res.figures["up_weight_stroke"] == pytest.approx(touch.grams(res.frictionless_n.min()))
+
+
+def test_key_pin_friction_alone_adds_its_torque_over_the_front_arm_exactly():
+    """An exact answer by hand: with friction at the key's balance pin only (E) the key
+    front, held at each dip, turns the key to the same angle as without friction, so the
+    rest of the action takes the same state and the key force changes by the pin's torque
+    over the key front's horizontal arm at that angle, r = cos(th) px - sin(th) py: up by
+    E / r on the way down, down by E / r on the way up, at every dip (the first step from
+    rest included, where the back felt and the hammer rail let go)."""
+    e_key = 0.0122
+    model = model_with({**FRICTION_OFF, "joint_friction.key.E": e_key})
+    res = touch.measure(model)
+    px, py = model.params.tree["key_input"]["point"]
+    th = np.array([y[k.QK] for y in _path(model, res)])
+    arm = np.cos(th) * px - np.sin(th) * py
+    np.testing.assert_allclose(res.down_n - res.frictionless_n, e_key / arm, rtol=1e-6)
+    np.testing.assert_allclose(res.frictionless_n - res.up_n, e_key / arm, rtol=1e-6)
+    assert res.figures["friction"] == pytest.approx(touch.grams(e_key / arm[
+        int(np.argmin(np.abs(res.dip_m - res.method["mid_stroke_dip_m"])))]), rel=1e-6)
 
 
 def test_key_front_lead_moves_balance_by_its_moment(base):
@@ -128,6 +148,49 @@ def test_key_inertia_is_felt_through_the_front_arm_squared(base):
     assert heavier.figures["down_weight"] == pytest.approx(base.figures["down_weight"])
     assert heavier.figures["inertia_mass"] - base.figures["inertia_mass"] == pytest.approx(
         added / base.key_front_radius_m**2 * 1e3, rel=0.01)
+    # the force that accelerates the key front at a (on top of the static one): the key's
+    # added inertia needs added x a / r^2 more (r the front's arm), by hand
+    a = 10.0
+    assert touch.acceleration_force(heavier, a) - touch.acceleration_force(base, a) == \
+        pytest.approx(added * a / base.key_front_radius_m**2, rel=0.01)
+    assert touch.acceleration_force(base, a) == pytest.approx(
+        base.figures["inertia_mass"] / 1e3 * a)
+
+
+def test_the_slow_press_plot_is_a_page_of_the_stroke_and_is_not_overwritten(tmp_path, base):
+    """rig touch --plot: one Plotly figure of the down, up and frictionless force (grams)
+    against the dip (mm); an existing file is kept unless --force."""
+    import re
+
+    from rig.services import touch as svc
+
+    out = tmp_path / "touch.html"
+    svc.write_plot(base, out, "base model", force=False)
+    text = out.read_text()
+    assert text.startswith("<!DOCTYPE html>") and "data-figures='1'" in text
+    call = re.search(r'Plotly\.newPlot\(\s*"touch-stroke",\s*(\[.*?\]),\s*\{', text, re.S)
+    assert call is not None
+    traces = {t["name"]: t for t in json.loads(call.group(1))}
+    assert set(traces) == {"down press", "up press", "frictionless"}
+    for name, force in (("down press", base.down_n), ("up press", base.up_n),
+                        ("frictionless", base.frictionless_n)):
+        np.testing.assert_allclose(_plotted(traces[name]["x"]), base.dip_m * 1e3)
+        np.testing.assert_allclose(_plotted(traces[name]["y"]),
+                                   [touch.grams(f) for f in force])
+    with pytest.raises(InputError, match="exists"):
+        svc.write_plot(base, out, "again", force=False)
+    assert out.read_text() == text
+    svc.write_plot(base, out, "again", force=True)
+    assert "again" in out.read_text()
+
+
+def _plotted(values: object) -> np.ndarray:
+    """A Plotly trace's array: a list, or a typed array ({"dtype", "bdata"} in base64)."""
+    import base64
+
+    if isinstance(values, dict):
+        return np.frombuffer(base64.b64decode(values["bdata"]), dtype=values["dtype"])
+    return np.asarray(values, dtype=float)
 
 
 def test_heavier_hammer_raises_weights_by_the_geometry(frictionless, base):
@@ -227,9 +290,17 @@ def test_cli_prints_and_emits_json(tmp_path, base):
     jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.touch/1"))
     assert doc["figures"]["down_weight"]["value"] == pytest.approx(base.figures["down_weight"])
     assert doc["figures"]["down_weight"]["newtons"] == pytest.approx(base.newtons["down_weight"])
-    text = _rig("touch")
+    page = tmp_path / "touch.html"
+    text = _rig("touch", "--plot", str(page), "--accel", "5")
     assert text.returncode == 0, text.stderr
     assert any(ln.startswith("down_weight") for ln in text.stdout.splitlines())
+    push = base.figures["inertia_mass"] / 1e3 * 5  # N: the mass felt x 5 m/s^2
+    assert f"5 m/s^2 at the key front needs {push:.3f} N" in text.stdout
+    assert doc["acceleration"]["force_N"] == pytest.approx(base.figures["inertia_mass"] / 100)
+    assert page.read_text().startswith("<!DOCTYPE html>")
+    again = _rig("touch", "--plot", str(page))
+    assert again.returncode == 2 and "exists" in again.stderr
+    assert len(again.stderr.strip().splitlines()) == 1
     bad = tmp_path / "m.yaml"
     bad.write_text("parameters: {contacts: {1: {A: oops}}}\n")
     refused = _rig("touch", "--model", str(bad))
@@ -267,8 +338,8 @@ def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
 def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
     """The dynamic answer: a slow force ramp (0 -> 70 g in 4 s) on the model whose friction
     thresholds are lowered so that its regularised laws act nearly as Coulomb friction at
-    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force just
-    under the static down force there, and closer to it the lower the thresholds."""
+    creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force near
+    the static down force there, and closer to it the lower the thresholds."""
     from rig import profiles
 
     ramp = profiles.from_points([[0.0, 0.0], [4.0, 0.070 * touch.G0]], name="ramp")
@@ -287,17 +358,54 @@ def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
         res = model.simulate(ramp)
         i = int(np.argmax(res.channels["key_dip"] > static.dip_m[0]))
         gaps.append(static.down_n[0] - res.channels["force"][i])
-    assert 0 < gaps[1] < gaps[0]
-    assert touch.grams(gaps[1]) < 2.0
+    # closer the lower the thresholds: under the static force at 100x, 0.3 g over it at
+    # 500x (the dynamic law keeps Eq. 3.6's static hump B1 at creep speeds; the static
+    # solve takes the kinetic A)
+    assert 0 < abs(gaps[1]) < gaps[0]
+    assert touch.grams(abs(gaps[1])) < 2.0
 
 
-@pytest.mark.slow
-def test_no_sliding_equilibrium_is_refused_naming_the_contact():
-    """A heavier hammer and more knuckle friction: on the return the knuckle's friction turns
-    the jack off its whippen stop; rig touch says where instead of printing a number."""
-    with pytest.raises(InputError, match=r"up press at [0-9.]+ mm .*contact 5 \(whippen-jack\) "
-                                         r"opens"):
-        touch.measure(model_with({"bodies.hammer_head.mass": 0.009, "contacts.7.A": 0.2}))
+def _dissipated(model: ActionModel, st: touch._Statics, y: np.ndarray, force: float) -> float:
+    """Energy (J) the friction of every contact and pin dissipates in the press's step that
+    ends at y (its speeds are the step's increments over touch.STEP_S): force x slip."""
+    co = np.zeros((k.N_CONTACT_OUT, 1, model.packed.n_contacts))
+    k.sample_outputs(st.sliding, model.workspace(), y[None, :], np.array([force]),
+                     model._head_pt, model._gauge, np.zeros((k.N_X, 1)), co)
+    out = float(np.sum(np.abs(co[k.O_FT, 0] * co[k.O_SLIP, 0])))
+    jf = st.sliding.jf
+    for j, c in enumerate(k.JOINT_COORD):
+        if model.active[c]:
+            w = y[k.NQ + c]
+            out += abs(k.joint_torque(w, jf[j, 0], 0.0, 0.0, jf[j, 3]) * w)
+    return out * touch.STEP_S
+
+
+@pytest.mark.parametrize("regulation", [0.0, -0.172])
+def test_the_presses_balance_work_potential_and_friction(regulation):
+    """Virtual work with friction, step by step along both presses: the key force's work
+    over each step equals the rise of the potential energy (gravity, springs, felts:
+    written out in this file) plus what every contact's and pin's friction dissipates
+    (force x slip, from the kernel's outputs). On the thesis's spring preload and on the
+    regulated one, where on the return the knuckle's friction drags the jack off its
+    whippen stop (contact 5 opens): the friction then turns with the slip it makes."""
+    model = model_with({"repetition_spring.regulation": regulation})
+    res = touch.measure(model)
+    st = touch._Statics(model)
+    if regulation:
+        assert "up press, contact 5" in res.method["contacts_changed"]
+    assert res.method["worst_residual"] < touch.FORCE_TOL
+    presses = (("down", res.down_states[:-1], res.down_n, res.dip_m),
+               ("up", res.up_states[::-1], res.up_n[::-1], res.dip_m[::-1]))
+    for way, states, forces, dips in presses:
+        work = (forces[1:] + forces[:-1]) / 2 * np.diff(dips)
+        rise = np.diff([_potential(model, y) for y in states])
+        lost = [_dissipated(model, st, y, f) for y, f in zip(states, forces, strict=True)]
+        lost = (np.array(lost[1:]) + np.array(lost[:-1])) / 2
+        # each step within 0.5 % but where a joint or contact changes between sticking and
+        # sliding in it (its dissipation is then no straight line); the stroke within 1 %
+        err = (work - rise - lost) / lost
+        assert np.median(np.abs(err)) < 5e-3, way
+        assert np.sum(work - rise - lost) == pytest.approx(0.0, abs=1e-2 * np.sum(lost)), way
 
 
 @pytest.mark.slow

@@ -227,6 +227,12 @@ def touch(
     model: Annotated[Path | None, typer.Option(
         "--model", "-m", help="model YAML (parameters, effects)")] = None,
     as_json: _JsonOpt = False,
+    plot: Annotated[Path | None, typer.Option(
+        "--plot", help="write the key force along the slow press as an HTML page (Plotly)")
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing --plot")] = False,
+    accel: Annotated[float, typer.Option(
+        "--accel", help="key-front acceleration (m/s^2) whose force to print")] = 10.0,
 ) -> None:
     """The action's touch weights at the key front as a technician quotes them (down-, up-,
     balance weight, friction, strike and front weight, key and action ratios; docs/touch.md)."""
@@ -234,11 +240,15 @@ def touch(
     from rig.services import touch as svc
 
     try:
+        refuse_existing(plot, force, "plot")
         m, res = svc.touch(model)
+        if plot is not None:
+            svc.write_plot(res, plot, f"Key force along a slow press: "
+                           f"{model if model else 'base model'}", force)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     if as_json:
-        _emit_json(svc.document(m, res, model))
+        _emit_json(svc.document(m, res, model, accel))
         return
     for name in tm.FIGURES:
         value, units = res.figures[name], tm.UNITS[name]
@@ -253,6 +263,12 @@ def touch(
     console.print(f"mid-stroke: {res.method['mid_stroke_dip_m'] * 1e3:.2f} mm; weights are "
                   f"grams-force (N / {tm.G0} x 1000)", markup=False, highlight=False,
                   soft_wrap=True)
+    push = tm.acceleration_force(res, accel)
+    console.print(f"acceleration: {accel:g} m/s^2 at the key front needs {push:.3f} N "
+                  f"({tm.grams(push):.1f} g) on top of the static force (inertia_mass x a)",
+                  markup=False, highlight=False, soft_wrap=True)
+    if plot is not None:
+        console.print(f"wrote {plot}", markup=False, highlight=False, soft_wrap=True)
 
 
 @app.command("effects")

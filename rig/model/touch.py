@@ -20,13 +20,21 @@ Figures (docs/touch.md has the definitions and the method):
   action's kinetic energy at 1 m/s of key-front speed along the press): a key-front
   acceleration a needs this mass times a on top of the static force.
 
-Method: quasi-static equilibria. At each key-front dip of the stroke the mechanism's
-generalized forces are solved to zero (every active coordinate and the key force, with the
-key front held at that dip). The friction laws (Eq. 3.6 and 3.8) are taken at their sliding
-limit -- the kinetic coefficient A (contacts) and torque E (pins), each opposing the slip
-that the press makes -- by evaluating them at a vanishing press speed with their threshold
-speeds shrunk far below it: the regularised laws then act as Coulomb friction, the
-technician's slow press, instead of the viscous-like law they are at speeds below v_t.
+Method: quasi-static equilibria along a slow press. The frictionless path is solved point
+by point (every active coordinate's generalized force zero with the key front held at the
+dip). The presses with friction are then solved step by step, down from rest and back up
+from the stroke's end, each step implicitly (backward Euler at a vanishing press speed):
+every joint's and contact's friction is evaluated at the slip the step itself makes, so
+friction opposes the actual slip, a joint or contact whose slip in the step stays under
+a tolerance of a tenth of a nanometre (a nanoradian) sticks and carries what statics asks
+of it up to its sliding limit, and a felt contact opens or closes wherever its
+compression says. The friction laws (Eq. 3.6 and 3.8) are taken as Coulomb's: the kinetic
+coefficient A (contacts) and torque E (pins) with their threshold speeds set to those
+tolerances per step and without the static hump (B1, F1), solved by continuation from
+10^4 times wider tolerances down (each solve starting from the wider one's answer, the
+slips of what sticks shrunk with the width); a step that finds no equilibrium so starts
+again from steps in which one pin or one contact sticks (the jack that the knuckle's
+friction drags off its stop on the return, with a weak repetition spring).
 Forces in N; weights in grams-force (N / G0 x 1000).
 """
 
@@ -48,11 +56,13 @@ STEP_M = 2.5e-4  # key-front dip between the stroke's points
 FIRST_M = 2.5e-4  # the stroke's first point: the key off its back felt, the hammer off its rail
 MAX_DIP_M = 0.02  # no stroke goes past this even without a stop
 PRESS_SPEED = 1e-6  # m/s at the key front: the press's speed (inertia and damping vanish)
-# a pin turning slower than this fraction of the key (per key-front dip) turns only as the
-# felts around it compress (the jack and repetition lever on the whippen before let-off):
-# it sticks, and its friction does no work
-STICK_FRACTION = 0.05
-SHRINK = 1e-9  # the friction laws' threshold speeds times this: sliding (Coulomb) limit
+STEP_S = STEP_M / PRESS_SPEED  # one step's duration (s): a step's increments over it are speeds
+SLIP_TOL_M = 1e-10  # a contact slipping less than this in a step sticks (Coulomb's width)
+TURN_TOL_RAD = 1e-9  # a pin turning less than this in a step sticks
+NEWTON_TOL = 1e-12  # N m: Newton's steps stop under this imbalance
+FORCE_TOL = 1e-8  # N m: the largest generalized-force imbalance a step with friction may leave
+SPLITS = 3  # a step that finds no equilibrium is halved up to this many times
+LADDER = (1e4, 1e3, 1e2, 1e1, 1.0)  # the tolerances' continuation, widest first
 # contacts that end the touch stroke when they close (ids of rig/data/action-parameters.yaml)
 STROKE_STOPS = {2: "key meets the front punching", 8: "jack toe meets the let-off button",
                 11: "repetition lever meets the drop screw"}
@@ -99,6 +109,12 @@ class Touch:
     key_front_radius_m: float    # horizontal arm of the key front about the balance pin, rest
     friction_shares_g: dict[str, float] = field(default_factory=dict)  # down press, mid-stroke
     method: dict[str, Any] = field(default_factory=dict)
+    # the presses' states (speeds = each step's increments over STEP_S): the down press at
+    # dip_m and then at the turn one step further (its force last in turn_force_n), the up
+    # press at dip_m
+    down_states: np.ndarray = field(default_factory=lambda: np.empty(0))
+    up_states: np.ndarray = field(default_factory=lambda: np.empty(0))
+    turn_force_n: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -112,6 +128,13 @@ class Touch:
             "friction_shares_g": self.friction_shares_g,
             "method": self.method,
         }
+
+
+def acceleration_force(result: Touch, accel: float) -> float:
+    """Force (N) at the key front, on top of the static one, that accelerates the key front
+    at ``accel`` m/s^2 mid-stroke from rest along the press: ``inertia_mass`` x accel (the
+    velocity-squared terms vanish at rest)."""
+    return result.figures["inertia_mass"] * 1e-3 * accel
 
 
 def grams(force_n: float) -> float:
@@ -138,12 +161,17 @@ class _Statics:
         # are 1e3-1e4 times an angle's): the solver's variable scaling, the residual's units
         self.scale = model.atol[self.coords] / model.atol[k.QK]
         base = model.packed.arrays
-        self.sliding = self._arrays(base, friction=True)
+        # the friction laws as Coulomb's, their widths from LADDER's widest to the target
+        self.ladder = [self._arrays(base, friction=True, widen=w) for w in LADDER]
+        self.sliding = self.ladder[-1]
         self.frictionless = self._arrays(base, friction=False)
         sp = base.sp
         self.pivot_y0 = float(sp[k.S_PIVY0])
         self.px, self.py = float(sp[k.S_KEYPX]), float(sp[k.S_KEYPY])
         self.rest = model.rest_state()
+        # the rest state's mass matrix over the solved coordinates (residuals in forces)
+        k.energy(np.r_[self.rest[: k.NQ], np.zeros(k.NQ)], model.packed.arrays, self.ws)
+        self.mass = self.ws.M[np.ix_(self.coords, self.coords)].copy()
         self.keytop_rest = self.keytop_y(self.rest)
         self.dy = np.zeros(k.NY)
         self.ids = list(model.packed.contact_ids)
@@ -156,7 +184,7 @@ class _Statics:
         self.gauge = np.array([beam["length"] - beam["strain_gauge_at"][0],
                                beam["strain_gauge_at"][1]])
 
-    def _arrays(self, base: Any, friction: bool) -> Any:
+    def _arrays(self, base: Any, friction: bool, widen: float = 1.0) -> Any:
         k = self.k
         a = k.Model(*(x.copy() for x in base))
         cl, jf = a.cl, a.jf
@@ -172,10 +200,13 @@ class _Statics:
                     raise InputError(f"contacts.{self.model.packed.contact_ids[i]}: B1 > 0 "
                                      f"with B2 = 0 is viscous friction without a sliding "
                                      f"limit; rig touch needs B2 > 0")
-            # the bristle law slides with the kinetic coefficient A: Eq. 3.6's sliding limit
+            # Coulomb's law: the kinetic coefficient A (the bristle law's too), no static hump,
+            # the threshold speeds those at which a step slips its tolerance
             cl[:, k.L_FLAW] = k.FRICTION_SMOOTHED
-            cl[:, k.L_VT] *= SHRINK
-            jf[:, 3] *= SHRINK
+            cl[:, k.L_B1] = 0.0
+            cl[:, k.L_VT] = SLIP_TOL_M * widen / STEP_S
+            jf[:, 1] = 0.0
+            jf[:, 3] = TURN_TOL_RAD * widen / STEP_S
         a.sp[k.S_BRISTLE] = 0.0
         return a
 
@@ -219,6 +250,150 @@ class _Statics:
         y[c] = sol.x[:-1]
         return y.copy(), float(sol.x[-1]), float(np.max(np.abs(r)))
 
+    def step(self, dip: float, prev: np.ndarray, guess: np.ndarray, f0: float,
+             hint: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+        """One implicit step of the press with friction: (state, key force N, worst
+        generalized-force imbalance N m) in equilibrium with the key front at ``dip``,
+        reached from the state ``prev`` in STEP_S seconds, each friction evaluated at the
+        slip of the step (the state's speeds are the step's increments over STEP_S).
+        ``hint``: the previous step's increments and force, tried first (what stuck then
+        mostly sticks now)."""
+        from scipy.optimize import root
+
+        k, c, ws, dy = self.k, self.coords, self.ws, self.dy
+        target = self.keytop_rest - dip
+        y = prev.copy()
+        y[k.NQ : k.NY] = 0.0
+
+        def residual(x: np.ndarray, arrays: Any) -> np.ndarray:
+            y[c] = prev[c] + x[:-1]
+            y[k.NQ + c] = x[:-1] / STEP_S
+            ws.qx[:] = self.extra(0.0, y)[0] if self.extra is not None else 0.0
+            k.rhs(0.0, y[: k.NY], float(x[-1]), arrays, ws, dy)
+            # the generalized forces' imbalance (the accelerations times the rest state's
+            # mass matrix; the same root), each coordinate's in N m per its scale
+            return np.r_[(self.mass @ dy[k.NQ + c]) * self.scale,
+                         (self.keytop_y(y) - target) * 1e3]
+
+        def jacobian(x: np.ndarray, arrays: Any, widen: float) -> np.ndarray:
+            # central differences a hundredth of the tolerance wide: they resolve a stuck
+            # joint's or contact's law (hybr's own steps would be lost in the rounding of
+            # the positions)
+            h = np.r_[self.scale * TURN_TOL_RAD * widen * 1e-2, 1e-6]
+            out = np.empty((x.size, x.size))
+            for j in range(x.size):
+                e = np.zeros(x.size)
+                e[j] = h[j]
+                out[:, j] = (residual(x + e, arrays) - residual(x - e, arrays)) / (2 * h[j])
+            return out
+
+        # unknowns: the step's increments (so that differences resolve the tolerances)
+        # and the key force
+        diag = np.r_[1.0 / self.scale, 1.0]
+
+        def ladder(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            for n, (widen, arrays) in enumerate(zip(LADDER, self.ladder, strict=True)):
+                if n:  # what sticks at the wider width slips that much less at this one
+                    x = self._narrowed(x, prev, LADDER[n - 1], widen)
+                sol = root(residual, x, args=(arrays,), jac=lambda x, a, w=widen:
+                           jacobian(x, a, w), method="hybr",
+                           options={"xtol": 1e-10, "diag": diag})
+                # damped Newton's steps polish what hybr's tolerance leaves (and take over
+                # where it stalled on a law's knee)
+                x, r = _newton(lambda x, a=arrays: residual(x, a),
+                               lambda x, a=arrays, w=widen: jacobian(x, a, w), sol.x)
+            return x, r
+
+        r = np.full(c.size + 1, np.inf)
+        if hint is not None:
+            x, r = _newton(lambda x: residual(x, self.sliding),
+                           lambda x: jacobian(x, self.sliding, 1.0), hint.copy(), 8)
+        starts = [np.r_[guess[c] - prev[c], f0]] if hint is None else [
+            hint.copy(), np.r_[guess[c] - prev[c], f0]]
+        for start in starts:
+            if np.max(np.abs(r)) > FORCE_TOL:
+                x, r = ladder(start)
+        if np.max(np.abs(r)) > FORCE_TOL:
+            # no equilibrium near the frictionless path's step: friction takes the step
+            # elsewhere (a jack the knuckle's friction drags off its stop). Start again
+            # from steps in which one joint or one contact sticks (its slip zeroed by one
+            # coordinate's increment) and keep the first that reaches an equilibrium.
+            for x_try in self._sticking_starts(x, prev):
+                x_new, r_new = ladder(x_try)
+                if np.max(np.abs(r_new)) < np.max(np.abs(r)):
+                    x, r = x_new, r_new
+                if np.max(np.abs(r)) <= FORCE_TOL:
+                    break
+        residual(x, self.sliding)  # leave the state at x
+        ws.qx[:] = 0.0
+        return y.copy(), float(x[-1]), float(np.max(np.abs(r)))
+
+    def _slips(self, x: np.ndarray, prev: np.ndarray) -> np.ndarray:
+        """Each contact's slip (m) and each pin's turn (rad) in the step of increments x
+        (the contacts first, then the pins of JOINT_COORD)."""
+        k, c = self.k, self.coords
+        y = prev.copy()
+        y[c] = prev[c] + x[:-1]
+        y[k.NQ : k.NY] = 0.0
+        y[k.NQ + c] = x[:-1]  # the step's increments, as if in 1 s
+        return np.r_[self.outputs(y, self.sliding)[k.O_SLIP], y[k.NQ + np.array(k.JOINT_COORD)]]
+
+    def _narrowed(self, x: np.ndarray, prev: np.ndarray, wide: float,
+                  narrow: float) -> np.ndarray:
+        """x moved so that every contact and pin that sticks at the width ``wide`` (its slip
+        within three widths) slips ``narrow / wide`` times as much: the continuation's
+        predictor (a stuck element's slip scales with the law's width)."""
+        k, c = self.k, self.coords
+        s0 = self._slips(x, prev)
+        nc = self.sliding.cl.shape[0]
+        y = prev.copy()
+        y[c] = prev[c] + x[:-1]
+        y[k.NQ : k.NY] = 0.0
+        fn = self.outputs(y, self.sliding)[k.O_FN]
+        width = np.r_[np.full(nc, SLIP_TOL_M), np.full(len(k.JOINT_COORD), TURN_TOL_RAD)] * wide
+        has = np.r_[(self.sliding.cl[:, k.L_MU_A] > 0) & (fn > 0), self.sliding.jf[:, 0] > 0]
+        stuck = has & (np.abs(s0) < 3 * width)
+        stuck[nc + list(k.JOINT_COORD).index(k.QK)] = False  # the key turns with the dip
+        if not stuck.any():
+            return x
+        grad = np.empty((s0.size, c.size))
+        for j in range(c.size):
+            e = np.zeros(x.size)
+            e[j] = 1e-6 * self.scale[j]
+            grad[:, j] = (self._slips(x + e, prev) - s0) / e[j]
+        rows = grad[stuck] / width[stuck, None]
+        want = (s0[stuck] * (narrow / wide - 1.0)) / width[stuck]
+        dx = np.linalg.lstsq(rows, want, rcond=None)[0]
+        return np.r_[x[:-1] + dx, x[-1]]
+
+    def _sticking_starts(self, x: np.ndarray, prev: np.ndarray) -> list[np.ndarray]:
+        """Starting points for a step: ``x`` (increments, key force) with the coordinate
+        that moves a loaded contact with friction most moved so that the contact does not
+        slip, or with one pin's turn zeroed."""
+        k, c = self.k, self.coords
+        out = []
+        nc = self.sliding.cl.shape[0]
+        base = self._slips(x, prev)[:nc]
+        fn = self.outputs(np.r_[prev[: k.NQ], np.zeros(k.NQ)], self.sliding)[k.O_FN]
+        grad = np.empty((nc, c.size))
+        for j in range(c.size):
+            e = np.zeros(x.size)
+            e[j] = 1e-6 * self.scale[j]
+            grad[:, j] = (self._slips(x + e, prev)[:nc] - base) / e[j]
+        for i in np.flatnonzero((self.sliding.cl[:, k.L_MU_A] > 0) & (fn > 0)):
+            movers = [int(j) for j in np.argsort(-np.abs(grad[i]))
+                      if c[j] != k.QK and grad[i, j] != 0]
+            if movers:
+                x_try = x.copy()
+                x_try[movers[0]] -= base[i] / grad[i, movers[0]]
+                out.append(x_try)
+        for j in range(c.size):
+            if c[j] != k.QK and c[j] in k.JOINT_COORD:
+                x_try = x.copy()
+                x_try[j] = 0.0
+                out.append(x_try)
+        return out
+
     def outputs(self, y: np.ndarray, arrays: Any, force: float = 0.0) -> np.ndarray:
         """Per-contact outputs [O_*, contact] at state y."""
         k, m = self.k, self.model
@@ -241,6 +416,31 @@ class _Statics:
     def potential(self, y: np.ndarray) -> float:
         kin, pot, ela = self.model.energy(np.r_[y[: self.k.NQ], np.zeros(self.k.NQ)])
         return pot
+
+
+def _newton(fun: Any, jac: Any, x: np.ndarray, iterations: int = 20) -> tuple[np.ndarray,
+                                                                                np.ndarray]:
+    """Damped Newton's method on ``fun`` from ``x``: each step halved until the largest
+    residual falls; stops when it no longer does. (x, residual there)."""
+    r = fun(x)
+    for _ in range(iterations):
+        size = float(np.linalg.norm(r))
+        if size < NEWTON_TOL:
+            break
+        try:
+            dx = np.linalg.solve(jac(x), -r)
+        except np.linalg.LinAlgError:
+            break
+        for _half in range(12):
+            trial = x + dx
+            r_trial = fun(trial)
+            if np.linalg.norm(r_trial) < size:
+                break
+            dx = dx / 2
+        else:
+            break
+        x, r = trial, r_trial
+    return x, r
 
 
 def _moment(st: _Statics, y: np.ndarray, coord: int, h: float = 1e-6) -> float:
@@ -320,27 +520,48 @@ def measure(model: ActionModel) -> Touch:
     states = np.array(path)
     mid = int(np.argmin(np.abs(dip - (dip[0] + dip[-1]) / 2)))  # the middle of the stroke
     tangent = np.gradient(states[:, : k.NQ], dip, axis=0)  # dq / d(dip)
-    down, up = np.empty(len(dip)), np.empty(len(dip))
-    yd, yu, fd, fu, f_prev = states[0].copy(), states[0].copy(), forces[0], forces[0], forces[0]
+    n = len(dip)
+    # the down press from rest, one step past the stroke's end (where the press turns)
+    turn = dip[-1] + STEP_M
+    down_at = np.r_[dip, turn]
+    guesses = [*states, states[-1] + (states[-1] - states[-2])]
+    ref_f = [*forces, 2 * forces[-1] - forces[-2]]
+    down_path: list[np.ndarray] = []
+    down, up = np.empty(n + 1), np.empty(n)
+    prev, prev_ref, f_prev, ref_prev = rest, rest, 0.0, 0.0
     worst, failed = 0.0, ""
-    for i in range(len(dip)):
-        v = tangent[i] * PRESS_SPEED
-        for c in k.JOINT_COORD[1:]:  # pins that turn only as the felts give: stuck
-            if abs(tangent[i, c]) < STICK_FRACTION * abs(tangent[i, k.QK]):
-                v[c] = 0.0
-        yd, fd, ed = _solve_from(st, dip[i], (states[i], yd), forces[i] + fd - f_prev, v)
-        yu, fu, eu = _solve_from(st, dip[i], (states[i], yu), forces[i] + fu - f_prev, -v)
-        f_prev = forces[i]
-        down[i], up[i] = fd, fu
-        worst = max(worst, ed, eu)
-        if not failed and max(ed, eu) > 1e-6:
-            failed = _why(st, states[i], yd if ed > 1e-6 else yu, fd if ed > 1e-6 else fu,
-                          dip[i], "down" if ed > 1e-6 else "up")
-        if i == mid:
-            shares = _friction_shares(st, yd, fd)
-    if worst > 1e-6:
+    hint = None
+    for i, d_i in enumerate(down_at):
+        guess = prev + (guesses[i] - prev_ref)
+        y_i, f_i, err = _advance(st, float(down_at[i - 1]) if i else 0.0, float(d_i), prev,
+                                 guess, f_prev + ref_f[i] - ref_prev, hint if i > 1 else None)
+        hint = np.r_[y_i[st.coords] - prev[st.coords], f_i]
+        worst = max(worst, err)
+        if err > FORCE_TOL and not failed:
+            failed = _why(st, guesses[i], y_i, f_i, float(d_i), "down")
+        down_path.append(y_i)
+        down[i] = f_i
+        prev, prev_ref, f_prev, ref_prev = y_i, guesses[i], f_i, ref_f[i]
+    # the up press from there back to the stroke's start
+    up_path: list[np.ndarray] = [np.empty(0)] * n
+    hint = None  # (the press turns: what stuck may slip now, and the other way)
+    for i in range(n - 1, -1, -1):
+        guess = prev + (guesses[i] - prev_ref)
+        y_i, f_i, err = _advance(st, float(down_at[i + 1]), float(dip[i]), prev, guess,
+                                 f_prev + ref_f[i] - ref_prev, hint if i < n - 2 else None)
+        hint = np.r_[y_i[st.coords] - prev[st.coords], f_i]
+        worst = max(worst, err)
+        if err > FORCE_TOL and not failed:
+            failed = _why(st, guesses[i], y_i, f_i, float(dip[i]), "up")
+        up_path[i] = y_i
+        up[i] = f_i
+        prev, prev_ref, f_prev, ref_prev = y_i, guesses[i], f_i, ref_f[i]
+    turn_force = float(down[n])
+    down = down[:n]
+    if worst > FORCE_TOL:
         raise InputError(f"model: {failed}: no quasi-static equilibrium with every friction "
                          f"at its sliding limit, so the touch weights are undefined")
+    shares = _friction_shares(st, down_path[mid], float(down[mid]))
     dw, uw = float(down[mid]), float(up[mid])
     sw, hammer_mass = _strike_weight(st)
     # the key's own weight turns its front down (clockwise): that moment over the front's arm
@@ -363,28 +584,57 @@ def measure(model: ActionModel) -> Touch:
     figures = {n: figures[n] for n in FIGURES}
     return Touch(figures=figures, newtons=newtons, dip_m=dip, down_n=down, up_n=up,
                  frictionless_n=np.array(forces), stroke_end=end, key_front_radius_m=r_front,
-                 friction_shares_g=shares,
+                 friction_shares_g=shares, down_states=np.array(down_path),
+                 up_states=np.array(up_path), turn_force_n=turn_force,
                  method={"g0_m_s2": G0, "model_gravity_m_s2": g, "step_m": STEP_M,
                          "first_m": FIRST_M, "press_speed_m_s": PRESS_SPEED,
-                         "threshold_factor": SHRINK, "worst_residual": worst,
+                         "slip_tolerance_m": SLIP_TOL_M, "turn_tolerance_rad": TURN_TOL_RAD,
+                         "turn_dip_m": float(turn), "worst_residual": worst,
+                         "contacts_changed": _changes(st, dip, down_path[:n], up_path),
                          "mid_stroke_dip_m": float(dip[mid]),
                          "down_stroke_at_dip_m": float(dip[int(np.argmax(down))]),
                          "up_stroke_at_dip_m": float(dip[int(np.argmin(up))])})
 
 
-def _solve_from(st: _Statics, dip: float, guesses: tuple[np.ndarray, ...], f0: float,
-                qd: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """The sliding equilibrium at ``dip`` from the first guess that converges (the
-    frictionless state there, then the previous point's sliding state)."""
-    best: tuple[np.ndarray, float, float] | None = None
-    for guess in guesses:
-        got = st.solve(dip, guess, f0, st.sliding, qd)
-        if best is None or got[2] < best[2]:
-            best = got
-        if got[2] <= 1e-9:
-            break
-    assert best is not None
-    return best
+def _advance(st: _Statics, d_from: float, d_to: float, prev: np.ndarray, guess: np.ndarray,
+             f0: float, hint: np.ndarray | None, depth: int = 0) -> tuple[np.ndarray, float,
+                                                                           float]:
+    """The press's step from ``prev`` (at ``d_from``) to ``d_to``; a step that finds no
+    equilibrium is taken as two half steps (down to an eighth), as a slower press would
+    take it. (The state's speeds are then its last part's increments.)"""
+    y, f, err = st.step(d_to, prev, guess, f0, hint)
+    if err <= FORCE_TOL or depth >= SPLITS:
+        return y, f, err
+    half = None if hint is None else np.r_[hint[:-1] / 2, hint[-1]]
+    d_mid = (d_from + d_to) / 2
+    y_mid, f_mid, e_mid = _advance(st, d_from, d_mid, prev, prev + (guess - prev) / 2, f0, half,
+                                   depth + 1)
+    if e_mid > FORCE_TOL:
+        return y, f, err
+    c = st.coords
+    y2, f2, e2 = _advance(st, d_mid, d_to, y_mid, y_mid + (guess - prev) / 2, f_mid,
+                          np.r_[y_mid[c] - prev[c], f_mid], depth + 1)
+    return (y2, f2, e2) if e2 < err else (y, f, err)
+
+
+def _changes(st: _Statics, dip: np.ndarray, down: list[np.ndarray],
+             up: list[np.ndarray]) -> dict[str, str]:
+    """Contacts that open or close along each press with friction: where each first
+    changes (the index of the stroke's point, counted from the stroke's start)."""
+    k = st.k
+    out: dict[str, str] = {}
+    for way, states in (("down", down), ("up", up)):
+        pen = np.array([st.outputs(y, st.sliding)[k.O_PEN] for y in states]) > 0
+        for j in range(pen.shape[1]):
+            if pen[:, j].any() and not pen[:, j].all():
+                first = int(np.flatnonzero(np.diff(pen[:, j]))[0]) + 1
+                if way == "up":  # the up press runs from the stroke's end
+                    first = int(np.flatnonzero(np.diff(pen[::-1, j]))[0]) + 1
+                    first = len(states) - 1 - first
+                state = "closed" if pen[first, j] else "open"
+                out[f"{way} press, contact {st.ids[j]}"] = (
+                    f"{state} from {dip[first] * 1e3:.2f} mm")
+    return out
 
 
 def _why(st: _Statics, path: np.ndarray, y: np.ndarray, force: float, dip: float,
