@@ -2,6 +2,7 @@
 
     python benchmarks/soak.py                      # 10 minutes of forte blows
     python benchmarks/soak.py --minutes 3 --out /tmp/soak
+    python benchmarks/soak.py --trials 200          # issue 37's 200-trial soak
 
 Runs `python -m rig run PROFILE --trials N` (N trials fill the requested time) in a
 subprocess and prints: the resident memory (RSS) of each of its processes (the run's
@@ -65,6 +66,8 @@ def _tree(pid: int) -> dict[str, int]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="length of the run (default 10)")
+    ap.add_argument("--trials", type=int, default=None,
+                    help="this many trials instead of --minutes' worth")
     ap.add_argument("--profile", type=Path, default=ROOT / "profiles" / "forte.yaml")
     ap.add_argument("--out", type=Path, default=None, help="folder for the rig config and file")
     ap.add_argument("--light", action="store_true",
@@ -97,7 +100,7 @@ def main() -> int:
     rc = config.from_mapping(cfg)
     prof = profiles.load(args.profile, force_limit=rc.limits.max_force_n)
     per_trial = rc.loop.settle_s + prof.duration + rc.loop.rest_s
-    trials = max(1, math.ceil(args.minutes * 60 / per_trial))
+    trials = args.trials or max(1, math.ceil(args.minutes * 60 / per_trial))
     run_file = out / "soak.h5"
     if run_file.exists():
         run_file.unlink()
