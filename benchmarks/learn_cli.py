@@ -80,6 +80,7 @@ def one(seed: int, n: int, profile_path: Path, folder: Path) -> dict[str, object
     kept_m = KEPT.search(res.stdout)
     assert kept_m and rows, res.stdout
     kept, spread = int(kept_m[1]), float(kept_m[2])
+    stop_m = re.search(r"learning stopped: (.*)", res.stdout)
     kept_max, kept_rms = next((mx, rms) for k, mx, rms in rows if k == kept)
     # better by the printed criterion: an RMS lower beyond the noise spread, or lower in
     # both RMS and maximum (the printed figures are rounded to 0.01 %)
@@ -107,7 +108,7 @@ def one(seed: int, n: int, profile_path: Path, folder: Path) -> dict[str, object
             "next_max": again["max_pct"], "next_rms": again["rms_pct"],
             "holds": again["rms_pct"] <= kept_rms + spread + 0.01, "learn_s": learn_s,
             "p99_ms": float(np.percentile(lateness, 99)), "max_ms": float(lateness.max()),
-            "missed": missed, "lag_s": lag}
+            "missed": missed, "lag_s": lag, "stopped": stop_m[1] if stop_m else ""}
 
 
 def main() -> None:
@@ -126,6 +127,8 @@ def main() -> None:
             r = one(args.first_seed + i, args.learn, args.profile, Path(d))
         out.append(r)
         trials = ", ".join(f"{mx:.2f}" for _, mx, _ in r["trials"])  # type: ignore[attr-defined]
+        if r["stopped"]:
+            print(f"seed {r['seed']}: learning stopped: {r['stopped']}")
         print(f"seed {r['seed']}: trials {trials} -> kept trial {r['kept']} "
               f"({r['kept_max']:.2f} %, RMS {r['kept_rms']:.2f} %"
               f"{'; AN EARLIER TRIAL WAS BETTER' if r['worse_kept'] else ''}; spread "
