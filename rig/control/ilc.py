@@ -435,10 +435,12 @@ class Learner:
             self.notes.append(f"worse than trial {kept + 1} beyond the noise spread (RMS "
                               f"{err['rms_pct']:.2f} % against {self.best['rms_pct']:.2f} %): "
                               f"restarting from its table, step x {self._trust:g}")
+            latest = (d, y)
             e, y, d = src.e, src.y, src.d
         if self.model_based:
             self._model_update(e, y, d, err,
-                               avoid=worse_u if "restarted" in err else None)
+                               avoid=worse_u if "restarted" in err else None,
+                               latest=latest if "restarted" in err else None)
             if "restarted" in err:
                 self.notes[-2:] = [f"{self.notes[-2]}; {self.notes[-1]}"]
             return err
@@ -457,7 +459,8 @@ class Learner:
         return err
 
     def _model_update(self, e: np.ndarray, y: np.ndarray, d: np.ndarray,
-                      err: dict[str, float], avoid: np.ndarray | None = None) -> None:
+                      err: dict[str, float], avoid: np.ndarray | None = None,
+                      latest: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Newton-type, noise-aware: the table whose model output moves by the measured error.
 
         The candidate drive model that best explains the trial (its gain re-estimated,
@@ -471,8 +474,11 @@ class Learner:
         update while the error is within the noise (the next trial's error is averaged
         in). A drifting gain is extrapolated to the next trial (``_predicted_gain``).
 
-        On a restart from the kept trial's data (``avoid``: the worse trial's table) the
-        gain is not counted again, the Newton step is ``_trust`` of it, and the plan, which
+        On a restart from the kept trial's data (``avoid``: the worse trial's table;
+        ``latest``: its demand and load cell) the drive's gain for the next trial is
+        predicted from the worse trial's fit (the drive as it is now: a drifting drive
+        is what made it worse on forte with a 10 % drift), the Newton step is ``_trust``
+        of it, and the plan, which
         is played whole or not at all (a mix of two plans' rise/fall schedules is no plan:
         halfway between two planned releases played at 16 % on asymmetric forte), is not
         played again if it is the worse trial's table."""
@@ -489,7 +495,8 @@ class Learner:
                 if g.model is not cand_model and g.rms_residual_n < f.rms_residual_n:
                     self._candidates[i], f = g.model, g
         lifted = getattr(self.controller, "lifted", None)
-        gain = f.gain if avoid is not None else self._predicted_gain(f)
+        gain = self._predicted_gain(f if latest is None else
+                                    plant.fit(self._candidates, *latest, hz))
 
         def model(u: np.ndarray, g: float = gain) -> tuple[np.ndarray, np.ndarray]:
             yh, dh, free = f.model.simulate_loop(u, hz, self.controller, g,
