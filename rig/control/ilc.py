@@ -69,8 +69,9 @@ The update (``Learner``, model-based; issue 18):
   noise spread, with another table and no smaller maximum error (the plan's trade of
   mean for maximum error is a starting point), sends the update back to the kept trial's
   table and error (and the errors averaged with it), with half the Newton step
-  (``_trust``; each later kept trial doubles it, up to 1): a trust region, so the error
-  falls from the best point instead of from a worse one. A plan is played whole or not
+  (``_trust``; each later kept trial doubles it, up to 1) and the drive's gain predicted
+  from the worse trial (the drive as it is now): a trust region, so the error falls from
+  the best point instead of from a worse one. A plan is played whole or not
   at all, and not again when it is the worse trial's table.
 * Divergence: learning stops (``Learner.stopped``) when a trial's RMS error exceeds the
   kept one's by ``grow_factor`` (default 1.5), or at the second trial worse than it by
