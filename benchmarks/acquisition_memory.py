@@ -2,14 +2,17 @@
 
     python benchmarks/acquisition_memory.py                 # 200 trials of 2 s
     python benchmarks/acquisition_memory.py --trials 40 --cache-kb 0   # HDF5's default cache
+    python benchmarks/acquisition_memory.py --trials 20 --no-sync    # the journal not synced
 
 Feeds rig.loop.acquisition.Acquisition (the class the acquisition process runs) 2 kHz rows of
 the built-in simulated rig's width in 20 ms reads, the loop's 500 Hz records, and flushes
 every 0.24 s into a run file and its journal, as the process does; prints the process's
 resident memory (RSS) every ``--every`` trials, its growth from the first trial, and the
 time spent flushing. ``--cache-kb`` sets HDF5's metadata cache of the run file (default:
-rig.runfile.METADATA_CACHE_BYTES; 0 = HDF5's own adaptive default). The whole run with
-its processes: benchmarks/soak.py.
+rig.runfile.METADATA_CACHE_BYTES; 0 = HDF5's own adaptive default). ``--no-sync``: the
+journal's records are not synced to the disk at each flush (rig.journal.JournalWriter.sync;
+the difference in flushing time is the sync's cost, also printed per flush). The whole run
+with its processes: benchmarks/soak.py.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ def main() -> int:
     ap.add_argument("--cache-kb", type=int, default=runfile.METADATA_CACHE_BYTES // 1024)
     ap.add_argument("--every", type=int, default=20, help="print every N trials")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--no-sync", action="store_true", help="do not sync the journal")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rig-acqmem-"))
     cfg = config.from_mapping({"backend": "sim", "data_folder": str(out)})
@@ -66,7 +70,17 @@ def main() -> int:
         d = h5py.File(path.with_suffix(".default.h5"), "r")
         writer.file.id.set_mdc_config(d.id.get_mdc_config())
         d.close()
-    jw = journal.JournalWriter.create(path)
+    jw = journal.JournalWriter.create(path, durable=not args.no_sync)
+    sync_s, syncs = [0.0], [0]
+    plain_sync = jw.sync
+
+    def timed_sync() -> None:
+        t0 = time.perf_counter()
+        plain_sync()
+        sync_s[0] += time.perf_counter() - t0
+        syncs[0] += 1
+
+    jw.sync = timed_sync  # type: ignore[method-assign]
     acq = Acquisition(cfg, cal_records.lookup(cfg), writer, _NoMessages(), None, jw)
     width = row_width(cfg)
     col = sensor_table.column(cfg, sensor_table.SAMPLE)
@@ -78,7 +92,7 @@ def main() -> int:
     first = None
     rng = np.random.default_rng(1)
     print(f"cache {args.cache_kb or 'HDF5 default'} KB; {args.trials} trials of "
-          f"{args.trial_s} s; {out}")
+          f"{args.trial_s} s; journal {'not ' if args.no_sync else ''}synced; {out}")
     for k in range(args.trials):
         acq.handle(("trial", k, n, n + per_trial // 10))
         for j in range(per_trial // read):
@@ -102,7 +116,9 @@ def main() -> int:
     acq.finish("complete", {}, {})
     jw.close()
     print(f"acquisition writer: RSS growth {rss_mb() - (first or 0):+.1f} MB over "
-          f"{args.trials} trials")
+          f"{args.trials} trials; flushing {flush_s:.2f} s in all, of which syncing the "
+          f"journal {sync_s[0]:.2f} s ({syncs[0]} syncs, "
+          f"{1e3 * sync_s[0] / max(syncs[0], 1):.2f} ms each)")
     return 0
 
 

@@ -8,10 +8,16 @@ Each run is a fresh data folder (no earlier record) and a simulated rig whose se
 the run's (sim.seed: the load cell's noise and the plant's draws), the built-in drive
 model, real-time loop (no --lockstep). Prints per run the load cell's maximum error of
 every learning trial (% of the profile's peak, as `rig run --learn` prints it), the kept
-trial, whether any trial played before the kept one had a lower RMS error (the keep
-criterion: must never happen), and the maximum error of the next plain run read from its
-run file (commands/measured_force against the profile at each loop cycle); then the
-median and worst of the kept and next-run figures. Issue 41's targets: kept median
+trial, whether a trial played before the kept one was better by the printed criterion (an
+RMS error lower by more than the printed noise spread, or both a lower RMS and a lower
+maximum error: must never happen), and the maximum error of the next plain run read from its
+run file (commands/measured_force against the profile at each loop cycle) and whether its
+RMS error is within the kept trial's plus the noise spread (the record holds); then the
+median and worst of the kept and next-run figures. Per run also the loop's lateness in
+the learning trials (p99, max, missed ticks) and how far the load cell's force lagged the
+demand (cross-correlation; the drive's own lag is a few ms): on a loaded machine the
+simulated plant falls behind real time and the loop reads old forces, so the figures are
+the load's, not the learner's. Issue 41's targets: kept median
 <= 2.5 %, worst <= 3 %; next run <= 3 %. Seeds 101 and up are the benchmark's block, never
 used by the tests (tests/test_tracking.py uses seeds 1-5).
 """
@@ -29,20 +35,32 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import config, profiles
+from rig import config, profiles, runfile
 from rig.control import ilc
 from rig.services import learn as learn_svc
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = Path(sys.executable).with_name("rig")
 ROW = re.compile(r"^\s*(\d+)\s+([\d.]+)\s+([\d.]+)\s+\S+\.h5$")
-KEPT = re.compile(r"learned feedforward: trial (\d+)")
+KEPT = re.compile(r"learned feedforward: trial (\d+) .*noise spread, ([\d.]+) %")
 
 
 def plain_error(path: Path, profile: profiles.Profile, hz: float) -> dict[str, float]:
     t = learn_svc.grid(profile, hz)
     ref = np.array([profile.at(x) for x in t])
     return ilc.errors(ref, learn_svc.measured_force(path, t.size), profile.peak)
+
+
+def force_lag_s(demand: np.ndarray, force: np.ndarray, hz: float) -> float:
+    """How far the load cell's force lags the demand written (s): from the demand's first
+    rise through half its peak to the force's. The drive's own lag is a few ms; a plant
+    process that cannot keep real time on a loaded machine delivers its samples late, and
+    the loop then reads old forces (seen: 0.3 s and more)."""
+    d, y = np.asarray(demand, float), np.asarray(force, float)
+    half = 0.5 * float(d.max())
+    if half <= 0 or not np.any(y >= half):
+        return float("inf")
+    return float(np.argmax(y >= half) - np.argmax(d >= half)) / hz
 
 
 def one(seed: int, n: int, profile_path: Path, folder: Path) -> dict[str, object]:
@@ -61,20 +79,36 @@ def one(seed: int, n: int, profile_path: Path, folder: Path) -> dict[str, object
             for m in map(ROW.match, res.stdout.splitlines()) if m]
     kept_m = KEPT.search(res.stdout)
     assert kept_m and rows, res.stdout
-    kept = int(kept_m[1])
+    kept, spread = int(kept_m[1]), float(kept_m[2])
+    stop_m = re.search(r"learning stopped: (.*)", res.stdout)
     kept_max, kept_rms = next((mx, rms) for k, mx, rms in rows if k == kept)
-    worse_kept = any(rms < kept_rms for k, _, rms in rows if k < kept)
+    # better by the printed criterion: an RMS lower beyond the noise spread, or lower in
+    # both RMS and maximum (the printed figures are rounded to 0.01 %)
+    worse_kept = any(rms < kept_rms - spread - 0.01 or (rms < kept_rms and mx < kept_max)
+                     for k, mx, rms in rows if k < kept)
+    cfg = config.load(rig_yaml)
+    # the loop's timing in the learning trials: how far the real-time figures are the loop's
+    lat, missed, lag = [], 0, 0.0
+    for k, _, _ in rows:
+        tr = runfile.read(folder / f"learn-learn{k}.h5").trials[0]
+        lat.append(np.asarray(tr.commands["lateness"], float))
+        missed += int(np.sum(tr.commands["missed"]))
+        lag = max(lag, force_lag_s(tr.commands["demand"], tr.commands["measured_force"],
+                                   cfg.rates.control_hz))
+    lateness = np.concatenate(lat) * 1e3 if lat else np.zeros(1)
     res2 = subprocess.run([str(RIG), "run", str(profile_path), "--rig", str(rig_yaml),
                            "-o", str(folder / "again.h5")],
                           capture_output=True, text=True, timeout=600)
     if res2.returncode != 0 or "using the learned feedforward" not in res2.stdout:
         raise SystemExit(f"seed {seed}: the plain run did not use the record\n{res2.stdout}")
-    cfg = config.load(rig_yaml)
     prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     again = plain_error(folder / "again.h5", prof, cfg.rates.control_hz)
     return {"seed": seed, "trials": rows, "kept": kept, "kept_max": kept_max,
-            "kept_rms": kept_rms, "worse_kept": worse_kept, "next_max": again["max_pct"],
-            "next_rms": again["rms_pct"], "learn_s": learn_s}
+            "kept_rms": kept_rms, "spread": spread, "worse_kept": worse_kept,
+            "next_max": again["max_pct"], "next_rms": again["rms_pct"],
+            "holds": again["rms_pct"] <= kept_rms + spread + 0.01, "learn_s": learn_s,
+            "p99_ms": float(np.percentile(lateness, 99)), "max_ms": float(lateness.max()),
+            "missed": missed, "lag_s": lag, "stopped": stop_m[1] if stop_m else ""}
 
 
 def main() -> None:
@@ -93,17 +127,25 @@ def main() -> None:
             r = one(args.first_seed + i, args.learn, args.profile, Path(d))
         out.append(r)
         trials = ", ".join(f"{mx:.2f}" for _, mx, _ in r["trials"])  # type: ignore[attr-defined]
+        if r["stopped"]:
+            print(f"seed {r['seed']}: learning stopped: {r['stopped']}")
         print(f"seed {r['seed']}: trials {trials} -> kept trial {r['kept']} "
               f"({r['kept_max']:.2f} %, RMS {r['kept_rms']:.2f} %"
-              f"{'; AN EARLIER TRIAL HAD A LOWER RMS' if r['worse_kept'] else ''}); next run "
-              f"{r['next_max']:.2f} % (RMS {r['next_rms']:.2f} %); learning took "
-              f"{r['learn_s']:.0f} s", flush=True)
+              f"{'; AN EARLIER TRIAL WAS BETTER' if r['worse_kept'] else ''}; spread "
+              f"{r['spread']:.2f} %); next run "
+              f"{r['next_max']:.2f} % (RMS {r['next_rms']:.2f} %, "
+              f"{'within' if r['holds'] else 'BEYOND'} the kept RMS + spread); learning took "
+              f"{r['learn_s']:.0f} s; loop lateness p99 {r['p99_ms']:.2f} ms, max "
+              f"{r['max_ms']:.1f} ms, {r['missed']} missed ticks, load-cell force behind the "
+              f"demand by up to {1e3 * float(r['lag_s']):.0f} ms in the learning trials",
+              flush=True)
     kept = [float(r["kept_max"]) for r in out]  # type: ignore[arg-type]
     nxt = [float(r["next_max"]) for r in out]  # type: ignore[arg-type]
     print(f"kept: median {statistics.median(kept):.2f} %, worst {max(kept):.2f} % "
           f"(targets 2.5 / 3 %); next run: median {statistics.median(nxt):.2f} %, worst "
           f"{max(nxt):.2f} % (target 3 %); kept worse than an earlier trial: "
-          f"{sum(bool(r['worse_kept']) for r in out)} of {len(out)}")
+          f"{sum(bool(r['worse_kept']) for r in out)} of {len(out)}; next-run RMS beyond the "
+          f"kept's + spread: {sum(not r['holds'] for r in out)} of {len(out)}")
 
 
 if __name__ == "__main__":

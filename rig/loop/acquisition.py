@@ -176,6 +176,7 @@ class Acquisition:
             for tr, section, data, units, docs, rows in blocks:
                 self.journal.append(tr.index, section, data, units, docs)
                 self.journaled += rows
+            self.journal.sync()   # on the disk: a power failure keeps them too
         if self.h5_failed is not None:
             return
         try:

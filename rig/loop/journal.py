@@ -10,7 +10,10 @@ flushes goes to the journal first, then to the HDF5 file. A record is whole or i
 discarded: each carries its length and a CRC-32, so a record cut short (by ENOSPC or a
 kill in the middle of ``write``) is recognised and dropped with everything after it, and
 every record before it is intact (the kernel keeps the written pages when the process
-dies; a power failure is not covered, as no fsync is made).
+dies). ``JournalWriter.sync`` (``os.fdatasync``), which the acquisition calls after each
+flush's records, puts them on the disk, so a power failure or a kernel crash keeps every
+record synced before it too (the journal's directory entry is synced when it is
+created); its cost: benchmarks/acquisition_memory.py (``--no-sync`` to compare).
 
 Layout: the 8 bytes ``RIGJRNL1``, then records. A record is a 20-byte head
 ``<4s I Q I>`` (``b"REC1"``, the payload's CRC-32, the payload's length, the JSON part's
@@ -157,8 +160,9 @@ def _encode(kind: str, fields: Mapping[str, Any], arrays: list[np.ndarray]) -> b
 class JournalWriter:
     """Appends records to a journal; ``create`` starts a new one (refusing an existing one)."""
 
-    def __init__(self, path: Path, fd: int) -> None:
+    def __init__(self, path: Path, fd: int, durable: bool = True) -> None:
         self.path, self.fd = path, fd
+        self.durable = durable   # sync() puts the records on the disk (False: a no-op)
         self.broken: OSError | None = None   # set once a write failed: nothing more written
         try:
             _lock(fd, path)  # (the kernel drops the lock with a dead writer)
@@ -167,12 +171,19 @@ class JournalWriter:
             raise
 
     @classmethod
-    def create(cls, run_path: str | Path) -> JournalWriter:
+    def create(cls, run_path: str | Path, durable: bool = True) -> JournalWriter:
         path = journal_path(run_path)
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
-        self = cls(path, fd)
+        self = cls(path, fd, durable)
         os.ftruncate(fd, 0)
         self._write(MAGIC, "journal head")
+        self.sync()
+        if durable:   # the new file's name in its folder survives a power failure too
+            dfd = os.open(path.parent, os.O_RDONLY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
         return self
 
     @classmethod
@@ -202,6 +213,19 @@ class JournalWriter:
             while view:
                 n = os.write(self.fd, view)
                 view = view[n:]
+        except OSError as exc:
+            self.broken = exc
+            raise
+
+    def sync(self) -> None:
+        """Put the records written so far on the disk (``os.fdatasync``; nothing when not
+        ``durable``): what a power failure or a kernel crash then cannot take."""
+        if self.broken is not None:
+            raise self.broken
+        if not self.durable:
+            return
+        try:
+            os.fdatasync(self.fd)
         except OSError as exc:
             self.broken = exc
             raise

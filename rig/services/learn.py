@@ -13,10 +13,13 @@ this profile if there is one (learning goes on from it), else the motor
 calibration's compensation or the 8 ms advance. The learning gain and lead come
 from the motor calibration record when one is in use, else the documented
 defaults (rig.control.ilc); the update's candidate models are the motor
-calibration's dynamic model and the thesis's single and rise/fall models. Learning
-stops early (keeping the best trial) when the error grows; Ctrl-C, or a trial that
-ends aborted, stops it too and keeps what was learned so far. The best table is
-written as a learned-feedforward record (rig.control.records) that later
+calibration's dynamic model and the thesis's single and rise/fall models. The kept
+table (ilc.kept_trial): of the trials whose load-cell RMS error is within the noise
+spread of the lowest, the one with the lowest maximum error; a trial worse than it
+beyond the spread is not a starting point (the update restarts from the kept table,
+half the step). Learning stops early (keeping that trial) when the error grows;
+Ctrl-C, or a trial that ends aborted, stops it too and keeps what was learned so far.
+The kept table is written as a learned-feedforward record (rig.control.records) that later
 `rig run PROFILE` uses.
 """
 
@@ -159,6 +162,8 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     rec = learned_records.build(cfg, profile, full_records, best_u, learner.history, best,
                                 filt_meta, stopped, created=_dt.datetime.now(_dt.UTC))
     rpath = learned_records.write(cfg, rec)
-    say(f"learned feedforward: trial {int(best['trial'])}, max error {best['max_pct']:.2f} %, "
-        f"RMS {best['rms_pct']:.2f} % of the peak; record {rpath}")
+    say(f"learned feedforward: trial {int(best['trial'])} (the lowest max error of the trials "
+        f"whose RMS error is within the noise spread, {learner.spread_pct():.2f} %, of the "
+        f"lowest), max error {best['max_pct']:.2f} %, RMS {best['rms_pct']:.2f} % of the peak; "
+        f"record {rpath}")
     return LearnReport(rec, rpath, learner.history, runs, stopped)
