@@ -1,7 +1,7 @@
 """Load-cell feedback in the 500 Hz loop: a PI controller on the force error.
 
 Switched on in the rig config: ``loop.controller: rig.control.feedback:LoadCellPI``
-(the loop's Controller hook, rig.controller). Each cycle
+(the loop's Controller hook, rig.loop.hook). Each cycle
 
     demand = feedforward + Kp e + I,   I += Ki e dt,   e = feedforward_target - measured
 
