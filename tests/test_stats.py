@@ -77,6 +77,11 @@ def test_values_print_and_round_to_their_uncertainty() -> None:
     assert stats.fmt(math.nan, 1.0) == "not determined"
     assert stats.round_to(0.12064, 0.0049) == 0.1206
     assert stats.round_to(19387.2, 3456.0) == 19400.0
+    # an uncertainty beyond the value keeps three of its digits (the wide benchmark's
+    # reserved seed 1014 wrote a drive bandwidth of 0.0 Hz, outside [5, 1000] Hz)
+    assert stats.round_to(41.3, 500.0) == 41.3
+    assert stats.round_to(0.0051472, 0.02) == 0.00515
+    assert stats.round_to(-3.456e-7, 1e-3) == -3.46e-7
 
 
 def test_values_in_sentences_read_plainly() -> None:

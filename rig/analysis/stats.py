@@ -219,10 +219,15 @@ def sandwich_cov(J: np.ndarray, r: np.ndarray, segments: Sequence[int]) -> np.nd
 
 
 def round_to(v: float, s: float) -> float:
-    """``v`` rounded to two significant digits of its uncertainty ``s``."""
+    """``v`` rounded to two significant digits of its uncertainty ``s``, keeping at least
+    three of its own: an uncertainty larger than the value (a parameter the data hardly
+    see) must not round it to 0 or across the bound it was fitted within (a drive's
+    bandwidth of 41.3 +- 500 Hz is written 41.3, not 0)."""
     if not (math.isfinite(v) and math.isfinite(s) and s > 0):
         return float(f"{v:.4g}") if math.isfinite(v) else v
     dec = 1 - math.floor(math.log10(s))
+    if v != 0:
+        dec = max(dec, 2 - math.floor(math.log10(abs(v))))
     return float(round(v, dec))
 
 
