@@ -51,7 +51,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy.special import fdtri  # the F distribution's quantile (scipy.stats: 1.4 s to import)
 
 from rig.model.vocabulary import EVENT_ORDER, KEY_MOVE_THRESHOLD_M
 
@@ -216,7 +216,7 @@ def _key_starts(m: _Motion) -> tuple[Found | None, float | None]:
         return None, None
     k = int(np.argmin(sse))
     dof = max(tt.size - 3, 1)  # t0, c and the shape
-    inside = cross[sse - sse[k] <= stats.f.ppf(0.95, 1, dof) * sse[k] / dof]
+    inside = cross[sse - sse[k] <= fdtri(1, dof, 0.95) * sse[k] / dof]
     half = 0.5 * m.dt
     return Found(float(cross[k]), float(inside.min()) - half, float(inside.max()) + half,
                  METHODS["key_starts"] + f"; below the noise ({level * 1e6:.0f} um): "
@@ -274,7 +274,7 @@ def _catch(m: _Motion, s: float, i_from: int, valid: np.ndarray | None = None
         return nan
     dof = tt.size - 4  # a, b, c and t0
     scale = max(best, 1e-30) / max(dof, 1)
-    inside = grid[sse - best <= stats.f.ppf(0.95, 1, max(dof, 1)) * scale]
+    inside = grid[sse - best <= fdtri(1, max(dof, 1), 0.95) * scale]
     return t_best, float(min(inside.min(), t_best - HINGE_GRID_S)), float(
         max(inside.max(), t_best + HINGE_GRID_S))
 
