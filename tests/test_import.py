@@ -253,6 +253,14 @@ def test_the_channel_vocabulary_is_the_models():
     assert {n: CHANNELS[n] for n in model} == model
 
 
+def test_the_event_vocabulary_is_the_models():
+    from rig.model import vocabulary as v
+    from rig.recordings import channels as c
+
+    assert c.EVENT_DOCS == v.EVENT_DOCS and c.EVENT_ORDER == v.EVENT_ORDER
+    assert c.KEY_MOVE_THRESHOLD_M == v.KEY_MOVE_THRESHOLD_M
+
+
 def test_lookup_out_of_range_refused_or_clipped_and_counted(tmp_path):
     src = _write(tmp_path / "s.csv", "x\n-1\n0\n0.5\n1\n2\n3\n")
     base = ("sample_rate_hz: 10\ncolumns:\n  - column: x\n    channel: sensor\n"

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import fdtri  # the F distribution's quantile (scipy.stats: 1.4 s to import)
 
-from rig.model.vocabulary import EVENT_ORDER, KEY_MOVE_THRESHOLD_M
+from rig.recordings.channels import EVENT_ORDER, KEY_MOVE_THRESHOLD_M  # (no numba)
 
 SOURCE = "found in the measured channels (rig.analysis.events)"
 METHODS: dict[str, str] = {

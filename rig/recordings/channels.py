@@ -1,8 +1,9 @@
-"""The run file's 1-D channels a recording may fill: name -> (SI units, meaning).
+"""The run file's 1-D channels a recording may fill: name -> (SI units, meaning), and the
+events of a blow found in them (rig.analysis.events).
 
-The model's names and units (rig.model.vocabulary, docs/run-file.md), copied here so that
-`rig import` does not load the model (numba: half a second of a fresh process);
-tests/test_import.py checks the copy against the model's vocabulary."""
+The model's names, units and events (rig.model.vocabulary, docs/run-file.md), copied here
+so that `rig import` does not load the model (numba: half a second of a fresh process);
+tests/test_import.py checks the copies against the model's vocabulary."""
 
 from __future__ import annotations
 
@@ -46,3 +47,18 @@ CHANNELS: dict[str, tuple[str, str]] = {
     "load_cell_ratio": ("V/V", "load cell bridge reading"),
     "strain_ratio": ("V/V", "strain gauge bridge reading"),
 }
+
+# the events in the order of a blow (rig.model.vocabulary.EVENT_DOCS)
+EVENT_DOCS: dict[str, str] = {
+    "key_starts": "key starts to move (key top travel exceeds the threshold)",
+    "toe_meets_button": "jack toe meets the let-off button (contact 8 closes)",
+    "let_off": "the jack escapes: it leaves the knuckle after its toe met the button "
+               "(contact 7 opens)",
+    "strike": "hammer meets the string (contact 12 closes)",
+    "string_release": "hammer leaves the string (contact 12 opens)",
+    "check": "back check catches the hammer tail after the string release (contact 4 closes)",
+    "key_bottom": "key reaches its front felt (contact 2 closes)",
+    "key_release": "key leaves its front felt for good (contact 2 opens for the last time)",
+}
+EVENT_ORDER = tuple(EVENT_DOCS)
+KEY_MOVE_THRESHOLD_M = 2e-5  # the key has started when its top travelled this far

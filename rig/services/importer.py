@@ -22,10 +22,10 @@ import numpy as np
 from rig import runfile
 from rig.analysis import events
 from rig.errors import InputError, refuse_existing
-from rig.model.vocabulary import EVENT_DOCS
 from rig.recordings import calibration as cal
 from rig.recordings import mapfile, readers
 from rig.recordings import segment as sg
+from rig.recordings.channels import EVENT_DOCS
 
 SOURCE = "imported"
 
