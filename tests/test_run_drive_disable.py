@@ -13,14 +13,20 @@ from rig.loop.drive import Drive, DriveError
 from rig.services import run as svc
 
 
-@pytest.mark.slow
-def test_a_failed_drive_disable_is_reported_and_recorded(tmp_path: Path, monkeypatch) -> None:
+def _short_run(tmp_path: Path) -> tuple[Path, config.RigConfig]:
+    """A 0.11 s blow to 5 N on the simulated rig, lock-step (not real time)."""
     prof = tmp_path / "short.yaml"
     prof.write_text("name: short\nsegments:\n  - {hold: 0.01}\n  - {ramp: 0.05, to: 5}\n"
                     "  - {ramp: 0.05, to: 0}\n")
     cfg = config.from_mapping({"name": "t", "backend": "sim", "data_folder": str(tmp_path),
                                "drive": {"port": "sim", "poll_period_s": 0.01},
                                "sim": {"realtime": False}, "loop": {"rest_s": 0.05}})
+    return prof, cfg
+
+
+@pytest.mark.slow
+def test_a_failed_drive_disable_is_reported_and_recorded(tmp_path: Path, monkeypatch) -> None:
+    prof, cfg = _short_run(tmp_path)
     disables: list[bool] = []
 
     def refuse(self: Drive) -> None:
@@ -41,11 +47,6 @@ def test_a_failed_drive_disable_is_reported_and_recorded(tmp_path: Path, monkeyp
 
 @pytest.mark.slow
 def test_a_drive_that_disables_leaves_no_such_record(tmp_path: Path) -> None:
-    prof = tmp_path / "short.yaml"
-    prof.write_text("name: short\nsegments:\n  - {hold: 0.01}\n  - {ramp: 0.05, to: 5}\n"
-                    "  - {ramp: 0.05, to: 0}\n")
-    cfg = config.from_mapping({"name": "t", "backend": "sim", "data_folder": str(tmp_path),
-                               "drive": {"port": "sim", "poll_period_s": 0.01},
-                               "sim": {"realtime": False}, "loop": {"rest_s": 0.05}})
+    prof, cfg = _short_run(tmp_path)
     rep = svc.run(prof, cfg, out=tmp_path / "run.h5", on_line=lambda s: None)
     assert "drive_disable_failed" not in runfile.read(rep.path).metadata
