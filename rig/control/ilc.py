@@ -496,8 +496,10 @@ class Learner:
                 if g.model is not cand_model and g.rms_residual_n < f.rms_residual_n:
                     self._candidates[i], f = g.model, g
         lifted = getattr(self.controller, "lifted", None)
-        gain = self._predicted_gain(f if latest is None else
-                                    plant.fit(self._candidates, *latest, hz))
+        # the drive as this trial found it (on a restart: the worse trial's own fit, not
+        # the kept trial's whose data the update restarts from)
+        now = f if latest is None else plant.fit(self._candidates, *latest, hz)
+        gain = self._predicted_gain(now)
 
         def model(u: np.ndarray, g: float = gain) -> tuple[np.ndarray, np.ndarray]:
             yh, dh, free = f.model.simulate_loop(u, hz, self.controller, g,
@@ -518,7 +520,7 @@ class Learner:
         u0 = self.u
         nv = self.noise_n ** 2 / m
         tau = discrepancy_tau(n)
-        err["model_gain"] = f.gain
+        err["model_gain"] = now.gain
         err["predicted_gain"] = gain
         err["model_rms_residual_n"] = f.rms_residual_n
         what = (f"{f.model.name} x {f.gain:.3f}"
