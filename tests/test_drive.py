@@ -65,3 +65,22 @@ def test_bad_port_names_the_field() -> None:
     cfg = config.builtin_sim(drive={"port": "/dev/does-not-exist"}).drive
     with pytest.raises(ValueError, match="drive.port"):
         Drive(cfg)
+
+
+def test_a_link_that_fails_is_a_drive_error_and_the_monitor_reports_it(link) -> None:
+    """The serial port failing under the link (a write timeout, a closed pseudo-terminal)
+    is a DriveError, not pyserial's own exception: the monitor thread reports it as a
+    fault instead of dying with it (seen in CI: a write timeout in the monitor thread as
+    the run's end closed the simulated drive)."""
+    _, sim, drive = link
+    mon = DriveMonitor(drive, 0.02)
+    mon.start()
+    time.sleep(0.1)
+    drive.serial.close()  # the port under the link goes away
+    with pytest.raises(DriveError, match="the link failed"):
+        drive.command("DRIVEOK")
+    end = time.monotonic() + 2
+    while mon.fault is None and time.monotonic() < end:
+        time.sleep(0.01)
+    mon.stop()
+    assert mon.fault is not None and mon.fault.startswith("drive link:"), mon.fault

@@ -43,16 +43,20 @@ class Drive:
             raise InputError(f"text: expected one command without CR, got {text!r}")
         prompt = self.cfg.prompt.encode()
         with self.lock:
-            self.serial.reset_input_buffer()
-            self.serial.write(text.encode("ascii") + b"\r")
-            buf = b""
-            end = time.monotonic() + self.cfg.timeout_s
-            while not buf.endswith(prompt):
-                chunk = self.serial.read(max(1, self.serial.in_waiting))
-                buf += chunk
-                if time.monotonic() > end:
-                    raise DriveError(f"drive on {self.port}: no answer to {text!r} within "
-                                     f"{self.cfg.timeout_s} s (got {buf!r})")
+            try:
+                self.serial.reset_input_buffer()
+                self.serial.write(text.encode("ascii") + b"\r")
+                buf = b""
+                end = time.monotonic() + self.cfg.timeout_s
+                while not buf.endswith(prompt):
+                    chunk = self.serial.read(max(1, self.serial.in_waiting))
+                    buf += chunk
+                    if time.monotonic() > end:
+                        raise DriveError(f"drive on {self.port}: no answer to {text!r} "
+                                         f"within {self.cfg.timeout_s} s (got {buf!r})")
+            except (serial.SerialException, OSError) as exc:  # the link itself failed
+                raise DriveError(f"drive on {self.port}: the link failed on {text!r} "
+                                 f"({type(exc).__name__}: {exc})") from exc
         body = buf[: -len(prompt)].decode("ascii", "replace")
         if body.startswith(text):
             body = body[len(text):]
@@ -107,6 +111,8 @@ class DriveMonitor:
             try:
                 fault = self.drive.fault()
             except DriveError as exc:
+                if self._stop.is_set():  # the run is over and its port closing: no fault
+                    return
                 fault = f"drive link: {exc}"
             if fault:
                 self.fault = fault
