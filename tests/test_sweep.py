@@ -107,7 +107,9 @@ def test_local_executor_forks_once_per_shared_object():
     pa, pb, pc = ({p for p, _ in r} for r in (a, b, c))
     assert [v for _, v in a] == [v for _, v in b] == [10 + i for i in range(6)]
     assert [v for _, v in c] == [20 + i for i in range(6)]
-    assert os.getpid() not in pa and pb <= pa and not (pc & pa)
+    # the same two forked workers for a and b (a worker may take no task of a map on a
+    # busy machine: b's may be the one a's did not see, so not b <= a), fresh ones for c
+    assert os.getpid() not in pa | pb and len(pa | pb) <= 2 and not (pc & (pa | pb))
 
 
 def test_dask_sweep_equals_local_processes(cluster, tmp_path):
