@@ -377,6 +377,10 @@ class DriveLink(_Strict):
     setup: list[str] = Field(default_factory=list, description="sent once before enabling")
     poll_period_s: float = Field(0.05, gt=0, le=MAX_DRIVE_POLL_PERIOD_S,
                                  description="a slower poll would see a drive fault too late")
+    link_failures: int = Field(3, ge=1, le=20,
+                               description="status polls in a row whose link fails (no answer, "
+                                           "a write timeout) before the run stops for a lost "
+                                           "link; a fault the drive reports stops it at once")
 
 
 class Rates(_Strict):

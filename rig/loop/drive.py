@@ -94,12 +94,16 @@ class Drive:
 
 
 class DriveMonitor:
-    """Polls the drive's status in a thread; ``fault`` is set when the drive reports one."""
+    """Polls the drive's status in a thread; ``fault`` is set when the drive reports one,
+    or when the link fails on ``drive.link_failures`` polls in a row (one failed poll is
+    not a lost link: a busy machine can hold this thread past pyserial's write timeout
+    although the bytes went out, as CI saw). ``link_errors`` counts every failed poll."""
 
     def __init__(self, drive: Drive, period_s: float) -> None:
         self.drive = drive
         self.period = period_s
         self.fault: str | None = None
+        self.link_errors = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="drive-monitor", daemon=True)
 
@@ -107,13 +111,20 @@ class DriveMonitor:
         self._thread.start()
 
     def _run(self) -> None:
+        in_a_row = 0
         while not self._stop.wait(self.period):
             try:
                 fault = self.drive.fault()
             except DriveError as exc:
                 if self._stop.is_set():  # the run is over and its port closing: no fault
                     return
-                fault = f"drive link: {exc}"
+                self.link_errors += 1
+                in_a_row += 1
+                if in_a_row < self.drive.cfg.link_failures:
+                    continue
+                fault = f"drive link: {exc} ({in_a_row} polls in a row)"
+            else:
+                in_a_row = 0
             if fault:
                 self.fault = fault
                 return

@@ -500,12 +500,17 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             disable_failed = _disable(drive, trace or say)
         if monitor is not None:
             monitor.stop()
+            if monitor.link_errors and monitor.fault is None:
+                (trace or say)(f"WARNING: {monitor.link_errors} drive status poll(s) failed on "
+                               f"the link and the next one answered; check the drive's cable "
+                               f"if this repeats")
 
     status = "complete" if reason is None else f"aborted: {reason}"
     stats = lateness_stats(rows.lateness[:rows.n], rows.missed[:rows.n],
                            cfg.limits.late_threshold_s)
     stats["realtime_priority"] = float(cfg.loop.realtime_priority if sched.realtime else 0)
     stats["cpu"] = float(cpu) if cpu is not None and sched.pinned is not None else -1.0
+    stats["drive_link_errors"] = float(monitor.link_errors if monitor is not None else 0)
     try:
         # only the trial that was cut is aborted: those before it ran to their end
         done_trials = trials if reason is None else max(0, last_tick) // per_trial
