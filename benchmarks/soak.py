@@ -3,6 +3,7 @@
     python benchmarks/soak.py                      # 10 minutes of forte blows
     python benchmarks/soak.py --minutes 3 --out /tmp/soak
     python benchmarks/soak.py --trials 200          # issue 37's 200-trial soak
+    python benchmarks/soak.py --trials 200 --lockstep   # the same, paced by the plant
 
 Runs `python -m rig run PROFILE --trials N` (N trials fill the requested time) in a
 subprocess and prints: the resident memory (RSS) of each of its processes (the run's
@@ -86,11 +87,15 @@ def main() -> int:
                     help="drive.timeout_s (the simulated drive's thread answers late when the "
                          "machine is overloaded)")
     ap.add_argument("--sample-s", type=float, default=5.0, help="RSS sampling period (s)")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="the simulated rig steps as fast as it can instead of in real time "
+                         "(rig run --lockstep): the same processes, files and writers, with the "
+                         "plant pacing the loop, so a loaded machine cannot abort the run")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="rig-soak-"))
     out.mkdir(parents=True, exist_ok=True)
     cfg = {"name": "soak", "backend": "sim", "drive": {"port": "sim"},
-           "sim": {"realtime": True}, "data_folder": str(out)}
+           "sim": {"realtime": not args.lockstep}, "data_folder": str(out)}
     if args.drive_timeout_s is not None:
         cfg["drive"]["timeout_s"] = args.drive_timeout_s  # type: ignore[index]
     if args.buffer_s is not None:

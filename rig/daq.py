@@ -84,6 +84,12 @@ class Daq(ABC):
     def close(self) -> None:
         """Write 0 V and release everything (idempotent)."""
 
+    def helper_processes(self) -> list[int]:
+        """The pids of processes that make the loop's samples alongside it and must keep its
+        pace (the simulated plant in real time): the run gives them the real-time class one
+        below the loop's, as its helper threads. A real card needs none."""
+        return []
+
     def stop_at_once(self) -> None:  # noqa: B027 - optional: only a simulator has a backlog
         """After an abort: ``close`` stops at once what makes the samples (the simulated
         plant, which may run behind the loop on a loaded machine) instead of letting it

@@ -386,6 +386,30 @@ def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path)
     assert set(after.values()) == {os.SCHED_OTHER}, after
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
+@pytest.mark.slow
+def test_the_real_time_plant_shares_the_loops_real_time_class(tmp_path: Path) -> None:
+    """In real time the simulated plant's process makes the samples the loop's controller
+    reads: in the normal class a loaded machine starves it and the loop reads forces tens to
+    hundreds of ms old (issue 41), so it runs one below the loop, and back after."""
+    seen: dict[str, tuple[int, int]] = {}
+    pids: list[int] = []
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if not seen:
+            (pid,) = ctx.daq.helper_processes()
+            pids.append(pid)
+            seen["plant"] = (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority)
+
+    rep = svc.run(_short_profile(tmp_path),
+                  sim_cfg(tmp_path, loop={"realtime_priority": 7}, sim={"realtime": True}),
+                  out=tmp_path / "rt.h5", on_cycle=hook)
+    assert rep.complete, rep.status
+    if not rep.lateness["realtime_priority"]:
+        pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
+    assert seen["plant"] == (os.SCHED_FIFO, 6), seen
+
+
 def test_xarray_opens_a_measured_run_with_time_as_the_dimension(forte_run) -> None:
     """Time is the HDF5 dimension scale of every channel and command, so the netCDF reader
     gives it as the coordinate in one line; every dataset has units and a long_name."""

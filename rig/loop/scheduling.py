@@ -16,7 +16,7 @@ import contextlib
 import gc
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from rig.config import RigConfig
@@ -120,7 +120,7 @@ class LoopScheduling:
         self.helpers: list[int] = []       # the run's other threads, raised with the loop
 
     def apply(self, cpu: int | None, priority: int, helper_owners: tuple[Any, ...],
-              say: Callable[[str], None]) -> None:
+              say: Callable[[str], None], helper_pids: Sequence[int] = ()) -> None:
         gc.collect()
         gc.freeze()  # keep the collector out of the loop (it would scan these objects)
         gc.disable()
@@ -139,7 +139,9 @@ class LoopScheduling:
             # holding it would hold the loop for milliseconds, so they get the real-time class
             # one below
             helper_priority = max(1, priority - 1)
-            self.helpers = [tid for tid in helper_threads(*helper_owners)
+            # and the processes that make the loop's samples beside it (the simulated plant:
+            # Daq.helper_processes), whose lag would be the loop's reading old forces
+            self.helpers = [tid for tid in [*helper_threads(*helper_owners), *helper_pids]
                             if realtime_priority(helper_priority, tid)]
 
     def undo(self) -> None:

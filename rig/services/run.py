@@ -420,7 +420,8 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         lc = cals["load_cell"]
         streak = done = 0
         trial_now = -1
-        sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say)
+        sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say,
+                    daq.helper_processes())
         while True:
             tick = daq.wait_for_tick()
             i = tick.index

@@ -116,6 +116,15 @@ class SimDaq(Daq):
                 "plant_pid": self.plant.pid if self.plant is not None else None,
                 "read_period_s": self.config.acquisition.read_period_s}
 
+    def helper_processes(self) -> list[int]:
+        """The plant process in real time: it integrates the action behind the loop's ticks
+        and the loop's controller reads its latest load-cell sample, so a plant starved by
+        other processes makes the loop read old forces (issue 41: 28-670 ms old on a loaded
+        machine)."""
+        if self.plant is None or not self.plant.is_alive() or self.plant.pid is None:
+            return []
+        return [int(self.plant.pid)]
+
     def arm(self) -> None:
         if self._armed:
             raise RuntimeError("the simulated rig is already armed")
