@@ -373,7 +373,8 @@ def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path)
                     seen[th.name] = (os.sched_getscheduler(th.native_id),
                                      os.sched_getparam(th.native_id).sched_priority)
 
-    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"realtime_priority": 7}),
+    rep = svc.run(_short_profile(tmp_path),
+                  sim_cfg(tmp_path, loop={"realtime_priority": 7}, sim={"realtime": True}),
                   out=tmp_path / "rt.h5", on_cycle=hook)
     assert rep.complete, rep.status
     if not rep.lateness["realtime_priority"]:
@@ -408,6 +409,24 @@ def test_the_real_time_plant_shares_the_loops_real_time_class(tmp_path: Path) ->
     if not rep.lateness["realtime_priority"]:
         pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
     assert seen["plant"] == (os.SCHED_FIFO, 6), seen
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
+def test_a_lock_step_run_keeps_the_normal_class(tmp_path: Path) -> None:
+    """A lock-step simulated rig integrates the action in the loop's thread as fast as it
+    can: at SCHED_FIFO it held a core from the acquisition process that drains its buffer
+    (a soak beside other real-time runs aborted: "the acquisition process stopped
+    reading"), so it has no real-time class to keep time it does not keep."""
+    seen: list[int] = []
+
+    def hook(ctx: svc.CycleContext) -> None:
+        if not seen:
+            seen.append(os.sched_getscheduler(0))
+
+    rep = svc.run(_short_profile(tmp_path), sim_cfg(tmp_path, loop={"realtime_priority": 7}),
+                  out=tmp_path / "ls.h5", on_cycle=hook)
+    assert rep.complete, rep.status
+    assert seen == [os.SCHED_OTHER] and rep.lateness["realtime_priority"] == 0
 
 
 def test_xarray_opens_a_measured_run_with_time_as_the_dimension(forte_run) -> None:

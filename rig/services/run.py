@@ -420,8 +420,12 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         lc = cals["load_cell"]
         streak = done = 0
         trial_now = -1
-        sched.apply(cpu, cfg.loop.realtime_priority, (monitor, sim_drive, ctrl), say,
-                    daq.helper_processes())
+        # the real-time class only where there is a time to keep: a lock-step simulated rig
+        # integrates the action in this thread as fast as it can, and at SCHED_FIFO it held a
+        # core from the acquisition process that must drain its buffer ("the acquisition
+        # process stopped reading" after 86 trials of a soak beside other real-time runs)
+        sched.apply(cpu, 0 if daq_lockstep(daq) else cfg.loop.realtime_priority,
+                    (monitor, sim_drive, ctrl), say, daq.helper_processes())
         while True:
             tick = daq.wait_for_tick()
             i = tick.index
