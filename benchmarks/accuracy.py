@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
+    from rig.inputs.profiles import Profile
     from rig.model.action import SimResult
-    from rig.profiles import Profile
 
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS = ["flexible_shank", "key_liftoff"]
@@ -47,7 +47,7 @@ SWEEP = [(name, scale) for name in ("forte", "piano", "two-peak") for scale in (
 
 def sweep() -> None:
     """The default and the axial-mode tolerances on nine blows (``--sweep``)."""
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model import kernel as k
 
     # u1's atol x 0.5 and its rate's = that x the axial mode (2000 1/s -> 3.3e4 1/s)
@@ -82,9 +82,9 @@ def run(profile: Profile, rtol: float, atol_scale: dict[int, float] | None = Non
         trace: bool = False, coupling: str = "two_way") -> tuple[SimResult, np.ndarray, int]:
     """The blow at rtol with absolute tolerances scaled; the step trace if asked;
     ``coupling``: the shank's axial coordinate (hammer_shank_axial.coupling)."""
+    from rig.inputs.params import Parameters
     from rig.model.action import ActionModel
     from rig.model.integrators_stiff import Rosenbrock
-    from rig.params import Parameters
 
     params = Parameters.default().set("hammer_shank_axial.coupling", coupling)
     model = ActionModel(params, effects=EFFECTS)
@@ -109,7 +109,7 @@ def run(profile: Profile, rtol: float, atol_scale: dict[int, float] | None = Non
 
 
 def main() -> None:
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model import kernel as k
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

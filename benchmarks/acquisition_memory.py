@@ -9,7 +9,7 @@ the built-in simulated rig's width in 20 ms reads, the loop's 500 Hz records, an
 every 0.24 s into a run file and its journal, as the process does; prints the process's
 resident memory (RSS) every ``--every`` trials, its growth from the first trial, and the
 time spent flushing. ``--cache-kb`` sets HDF5's metadata cache of the run file (default:
-rig.runfile.METADATA_CACHE_BYTES; 0 = HDF5's own adaptive default). ``--no-sync``: the
+rig.recordings.runfile.METADATA_CACHE_BYTES; 0 = HDF5's own adaptive default). ``--no-sync``: the
 journal's records are not synced to the disk at each flush (rig.journal.JournalWriter.sync;
 the difference in flushing time is the sync's cost, also printed per flush). The whole run
 with its processes: benchmarks/soak.py.
@@ -40,10 +40,11 @@ class _NoMessages:
 
 
 def main() -> int:
-    from rig import config, runfile
     from rig.calibration import records as cal_records
+    from rig.inputs import config
     from rig.loop import journal
     from rig.loop.acquisition import Acquisition
+    from rig.recordings import runfile
     from rig.sensors import table as sensor_table
     from rig.sim_backend.daq import row_width
 

@@ -63,7 +63,7 @@ event.register("numba:compile", Listener())
 stages = {}
 t = time.perf_counter()
 from pathlib import Path
-from rig import profiles
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 stages["import the model"] = time.perf_counter() - t
 forte = profiles.load(Path(sys.argv[1]) / "profiles" / "forte.yaml")

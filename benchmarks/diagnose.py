@@ -33,10 +33,10 @@ def main() -> None:
     ap.add_argument("--single", action="store_true", help="single-candidate ranking only")
     args = ap.parse_args()
 
-    from rig import profiles
     from rig.analysis import diagnose as dg
     from rig.analysis import measurement as ms
     from rig.analysis import synth
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
     from rig.model.effects import BUILTIN
 

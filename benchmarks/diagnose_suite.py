@@ -141,7 +141,7 @@ def varied(case: str, seed: int, hidden: list[str]) -> dict:
 
     import numpy as np
 
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model.effects import BUILTIN
 
     rng = np.random.default_rng([seed, zlib.crc32(case.encode())])

@@ -254,8 +254,8 @@ def truth_model(d: Draw) -> Any:
     the user effect."""
     from user_effects.outside import FAMILY
 
+    from rig.inputs.params import Parameters
     from rig.model.action import ActionModel
-    from rig.params import Parameters
 
     params = Parameters.default()
     for name, factor in d.base.items():
@@ -270,8 +270,8 @@ def truth_model(d: Draw) -> Any:
 
 def synth_run(d: Draw, blows: Sequence[Blow], path: Path, seed: int) -> None:
     """Synthesize the blows from the seed's truth into a run file."""
-    from rig import profiles
     from rig.analysis import synth
+    from rig.inputs import profiles
 
     cfg = synth.default_rig()
     if d.filter_hz is not None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import profiles
+from rig.inputs import profiles
 from rig.model import kernel as k
 from rig.model.action import ActionModel
 from rig.model.effects import RailLift, rail_lift

@@ -31,9 +31,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=2)
     args = ap.parse_args()
-    from rig import profiles
     from rig.analysis import events
     from rig.analysis import synth as sy
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     tmp = Path(tempfile.mkdtemp())

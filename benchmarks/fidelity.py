@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from fidelity_drive import rows as drive_rows  # noqa: E402
 
-from rig import profiles  # noqa: E402
+from rig.inputs import profiles  # noqa: E402
 from rig.model import regulation  # noqa: E402
 from rig.model.action import ActionModel, SimResult  # noqa: E402
 

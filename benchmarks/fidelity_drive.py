@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import config, profiles
-from rig.config import RigConfig
+from rig.inputs import config, profiles
+from rig.inputs.config import RigConfig
+from rig.inputs.params import Parameters
 from rig.model.fingertip import constant_speed_force
-from rig.params import Parameters
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet
 

@@ -35,8 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import config, profiles, runfile
 from rig.control import ilc
+from rig.inputs import config, profiles
+from rig.recordings import runfile
 from rig.services import learn as learn_svc
 
 ROOT = Path(__file__).resolve().parents[1]

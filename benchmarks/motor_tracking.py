@@ -14,7 +14,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from rig import config
+from rig.inputs import config
 from rig.services import calibrate as svc
 from rig.services import run as run_svc
 

@@ -49,10 +49,11 @@ from typing import Any
 
 import numpy as np
 
-from rig import config, runfile
 from rig.calibration import records
+from rig.inputs import config
 from rig.loop import scheduling
 from rig.loop.acquisition import Acquisition
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 from rig.services import run as svc
 from rig.sim_backend import clock

@@ -44,9 +44,9 @@ def _model(effects: list[str], integrator: str | None,
            coupling: str | None = None) -> ActionModel:
     """The model with its default integrator, or the named one at the model's tolerances;
     ``coupling``: hammer_shank_axial.coupling (the shank's axial coordinate), if given."""
+    from rig.inputs.params import Parameters
     from rig.model.action import ActionModel
     from rig.model.integration import by_name
-    from rig.params import Parameters
 
     params = Parameters.default()
     if coupling:
@@ -60,7 +60,7 @@ def _model(effects: list[str], integrator: str | None,
 
 def measure(effects: list[str], repeats: int, integrator: str | None,
             pause: float = 0.0, coupling: str | None = None) -> dict[str, float]:
-    from rig import profiles
+    from rig.inputs import profiles
 
     profile = profiles.load(ROOT / "profiles" / "forte.yaml")
     model = _model(effects, integrator, coupling)
@@ -86,7 +86,7 @@ def breakdown(effects: list[str], repeats: int, integrator: str | None,
     import numpy as np
     from numba import njit
 
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model import kernel as k
 
     @njit(cache=False)

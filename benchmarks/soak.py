@@ -106,7 +106,7 @@ def main() -> int:
     rig_file = out / "soak-rig.yaml"
     rig_file.write_text(yaml.safe_dump(cfg))
 
-    from rig import config, profiles
+    from rig.inputs import config, profiles
 
     rc = config.from_mapping(cfg)
     prof = profiles.load(args.profile, force_limit=rc.limits.max_force_n)

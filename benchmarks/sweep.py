@@ -42,9 +42,9 @@ def main() -> None:
 
     from distributed import Client, LocalCluster
 
-    from rig import profiles
     from rig.analysis import sweep as sw
-    from rig.executor import DaskExecutor, LocalExecutor
+    from rig.analysis.executor import DaskExecutor, LocalExecutor
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     axes = [sw.Axis.parse(a) for a in AXES]

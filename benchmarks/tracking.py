@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import config, profiles
 from rig.control import feedback, ilc, offline, plant
+from rig.inputs import config, profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": "sim"}})

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rig import config, profiles
 from rig.control import bound, offline, plant
 from rig.errors import InputError
+from rig.inputs import config, profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = config.from_mapping({"name": "bench", "backend": "sim", "drive": {"port": "sim"}})

@@ -1,5 +1,5 @@
 """Why rig reads YAML with PyYAML's libyaml parser and YAML 1.2 core-schema rules of its
-own (rig.params) rather than with ruamel.yaml, the maintained YAML 1.2 library:
+own (rig.inputs.params) rather than with ruamel.yaml, the maintained YAML 1.2 library:
 
     .venv/bin/python benchmarks/yaml_load.py [--repeats 30]
 
@@ -21,7 +21,7 @@ from typing import Any
 
 from ruamel.yaml import YAML
 
-from rig.params import _load_yaml_text
+from rig.inputs.params import _load_yaml_text
 
 ROOT = Path(__file__).resolve().parents[1]
 FILES = [ROOT / "rig/data/action-parameters.yaml", ROOT / "rig/data/chosen-parameters.yaml",

@@ -23,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
 from rig.errors import InputError, refuse_existing
+from rig.recordings import runfile
 
 
 @dataclass
 class Trial(runfile.Trial):
     """One trial of a run file or one simulated blow: channels, units, events, commands;
-    ``to_xarray()``, ``to_dataframe()`` (from rig.runfile.Trial) and ``plot()``."""
+    ``to_xarray()``, ``to_dataframe()`` (from rig.recordings.runfile.Trial) and ``plot()``."""
 
     result: Any = None  # the SimResult of rig.simulate (summary(), events, stats)
 
@@ -69,7 +69,7 @@ def simulate(profile: str | Path, *, model: str | Path | None = None,
     """Simulate one blow of the model (the rigid base model plus ``effects``, library names
     or ``file.py:Class``) under a force profile; ``out`` also writes the run file (never
     over an existing file unless ``force``)."""
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model.action import CHANNEL_DOCS
     from rig.services import simulate as svc
 

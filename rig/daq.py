@@ -1,11 +1,11 @@
 """The DAQ interface: what the torque loop and the acquisition process need from the cards.
 
-One abstract interface per side, two implementations, chosen by ``rig.backends`` (the
+One abstract interface per side, two implementations, chosen by ``rig.loop.backends`` (the
 only module naming the backends) from the rig configuration: ``rig.ni_backend``
 (NI-DAQmx cards) and ``rig.sim_backend`` (the simulated rig), packages with the same
 inner layout (``daq``: loop and acquisition sides; ``bench``: what calibrations read).
 A config asking for NI never falls back to simulation: if the NI driver or cards are
-missing, ``rig.backends.open_daq`` raises.
+missing, ``rig.loop.backends.open_daq`` raises.
 
 Loop side (the run's process):  zero_output() [then the drive is enabled] -> arm() ->
 wait_for_tick() -> write_volts() -> write_lateness(tick) ...
@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import RigConfig
 from rig.errors import InputError, RigError
+from rig.inputs.config import RigConfig
 
 
 class DaqFault(RigError, RuntimeError):

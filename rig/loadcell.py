@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import LoadCell
+from rig.inputs.config import LoadCell
 
 
 def nominal_sensitivity(cfg: LoadCell) -> float:

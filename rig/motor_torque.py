@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.config import DriveOutput, DriveScaling, Limits
 from rig.errors import InputError
-from rig.params import THESIS_TIME_UNIT_S, Parameters
-from rig.profiles import Profile
+from rig.inputs.config import DriveOutput, DriveScaling, Limits
+from rig.inputs.params import THESIS_TIME_UNIT_S, Parameters
+from rig.inputs.profiles import Profile
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from rig import profiles
+from rig.inputs import profiles
 from rig.model.action import ActionModel, SimResult
 
 ROOT = Path(__file__).resolve().parents[1]

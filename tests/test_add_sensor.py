@@ -24,8 +24,9 @@ import pytest
 import yaml
 from ni_fake import FakeInterpreter  # nidaqmx's own classes, the DAQmx calls recorded
 
-from rig import config, runfile
+from rig.inputs import config
 from rig.ni_backend.daq import NiReader
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 
 ROOT = Path(__file__).resolve().parents[1]

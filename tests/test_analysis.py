@@ -14,14 +14,15 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import profiles, runfile
 from rig.analysis import compare as cp
 from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import report, synth
 from rig.cli import app
+from rig.inputs import profiles
 from rig.model.action import ActionModel
+from rig.recordings import runfile
 
 ROOT = Path(__file__).parents[1]
 FORTE = ROOT / "profiles" / "forte.yaml"

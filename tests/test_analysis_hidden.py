@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import profiles
 from rig.analysis import compare as cp
 from rig.analysis import diagnose as dg
 from rig.analysis import measurement as ms
 from rig.analysis import synth
+from rig.inputs import profiles
 from rig.model.action import ActionModel, SimResult
 from rig.model.effects import BUILTIN, Effect, EffectParameter, EffectState, Signature
 

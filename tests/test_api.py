@@ -14,8 +14,8 @@ import pytest
 from typer.testing import CliRunner
 
 import rig
-from rig import runfile
 from rig.cli import app
+from rig.recordings import runfile
 
 ROOT = Path(__file__).resolve().parents[1]
 FORTE = ROOT / "profiles" / "forte.yaml"
@@ -162,8 +162,8 @@ def test_effects_json_lists_the_library() -> None:
 
 
 def test_fit_json_validates(tmp_path) -> None:
-    from rig import profiles
     from rig.analysis import synth
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     data = tmp_path / "d.h5"
@@ -234,8 +234,8 @@ def test_shell_completion_of_commands_options_and_effect_names(words, cword, exp
 
 @pytest.mark.slow
 def test_compare_and_diagnose_json_validate_and_say_what_the_text_says(tmp_path) -> None:
-    from rig import profiles
     from rig.analysis import synth
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     truth = ActionModel(effects=[{"compliant_string": {"stiffness": 3.0e4}}])

@@ -18,12 +18,12 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import minimize_scalar
 
-from rig import profiles
 from rig.errors import InputError
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
 from rig.model.action import ActionModel
 from rig.model.assembly import static_coefficient
-from rig.params import Parameters
 
 ROOT = Path(__file__).resolve().parents[1]
 A, B1, B2, VT = 0.434, 1.78, 1.0, 0.05  # contact 4, Table 3.1 and the chosen v_t

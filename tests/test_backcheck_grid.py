@@ -19,9 +19,9 @@ import itertools
 import numpy as np
 import pytest
 
-from rig import profiles
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 from rig.model.action import ActionModel, SimResult, contact_indicator
-from rig.params import Parameters
 
 FULL = ("flexible_shank", "key_liftoff")
 REGULATED = -0.172  # rad: the spring's free angle 0.832 -> 0.660 (docs/model.md)

@@ -25,7 +25,7 @@ def test_stepper_without_history_gives_the_same_chunks_and_keeps_none() -> None:
 
 
 def test_the_simulated_rig_steps_without_history() -> None:
-    from rig import config
+    from rig.inputs import config
     from rig.sim_backend.simrig import SimRig
 
     cfg = config.from_mapping({"backend": "sim", "sim": {"effects": []},

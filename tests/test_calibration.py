@@ -15,7 +15,6 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import config, profiles, runfile
 from rig.calibration import encoders, motor, records
 from rig.calibration import loadcell as lc
 from rig.calibration import records as cal_records
@@ -23,7 +22,9 @@ from rig.calibration import strain as sg
 from rig.calibration.settings import CalibrationSettings
 from rig.cli import app
 from rig.daq import DaqFault
+from rig.inputs import config, profiles
 from rig.ni_backend.bench import NiBench
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 from rig.services import calibrate as svc
 from rig.sim_backend.bench import SimBench

@@ -8,8 +8,9 @@ import nidaqmx
 import nidaqmx.errors
 import pytest
 
-from rig import backends, config
 from rig.daq import DaqFault
+from rig.inputs import config
+from rig.loop import backends
 
 
 def ni_config(**kw):

@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 import yaml
 
-from rig import profiles
 from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import synth
 from rig.analysis.diagnose.check import written_removal, written_values
 from rig.errors import InputError
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, make
 

@@ -11,9 +11,9 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import profiles
 from rig.analysis import synth
 from rig.cli import app
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 from rig.services import diagnose as svc_diagnose
 from rig.services import fit as svc_fit

@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import profiles
 from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import synth
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN
 

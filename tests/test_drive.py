@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from rig import config
+from rig.inputs import config
 from rig.loop.drive import Drive, DriveError, DriveMonitor
 from rig.sim_backend.drive_pty import SimDrive
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from rig import config, profiles
-from rig.params import Parameters
+from rig.inputs import config, profiles
+from rig.inputs.params import Parameters
 from rig.sim_backend.drive_model import VARIANTS, DriveModel, ramp_lag_s
 from rig.sim_backend.simrig import SimRig
 

@@ -10,12 +10,12 @@ import pytest
 from scipy.linalg import eigh
 from typer.testing import CliRunner
 
-from rig import runfile
 from rig.cli import app
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect, RailLift, make, rail_lift
-from rig.params import Parameters
+from rig.recordings import runfile
 
 ROOT_X, HEAD_X = -0.0415, -0.1275  # shank root and head end in the hammer frame (m)
 

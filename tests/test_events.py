@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig import profiles
 from rig.analysis import events
 from rig.analysis import synth as sy
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 
 RATE = 2000.0

@@ -9,12 +9,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import profiles, runfile
 from rig.analysis import diagnose as dg
 from rig.cli import app
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 from rig.model.action import ActionModel
 from rig.model.fingertip import Fingertip, constant_speed_force, kelvin_force
-from rig.params import Parameters
+from rig.recordings import runfile
 
 ROOT = Path(__file__).parents[1]
 PRESS = ROOT / "profiles" / "fingertip-press.yaml"

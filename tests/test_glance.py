@@ -1,5 +1,5 @@
 """`rig --version`, `rig info` and `rig plot` (issue 15) on a hand-made measured run file
-(real HDF5 through rig.runfile, known values) and in a real subprocess."""
+(real HDF5 through rig.recordings.runfile, known values) and in a real subprocess."""
 
 from __future__ import annotations
 
@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import __version__, runfile
+from rig import __version__
 from rig.analysis import quicklook
 from rig.cli import app
+from rig.recordings import runfile
 
 runner = CliRunner()
 

@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import runfile
 from rig.cli import app
 from rig.errors import InputError
 from rig.recordings import calibration as cal
-from rig.recordings import mapfile, readers
+from rig.recordings import mapfile, readers, runfile
 from rig.recordings import segment as sg
 from rig.services import importer
 

@@ -24,8 +24,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from pydantic import BaseModel
 
-from rig import config, motor_torque, profiles
-from rig.config import RigConfig
+from rig import motor_torque
+from rig.inputs import config, profiles
+from rig.inputs.config import RigConfig
 
 BUDGET = settings(max_examples=250, derandomize=True, deadline=None,
                   suppress_health_check=[HealthCheck.too_slow])

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import config, motor_torque, profiles, runfile
+from rig import motor_torque
 from rig.analysis import measurement as ms
 from rig.calibration.records import MissingCalibration, lookup
 from rig.cli import app
 from rig.errors import InputError
+from rig.inputs import config, profiles
 from rig.model.action import ActionModel
+from rig.recordings import runfile
 
 ROOT = Path(__file__).parents[1]
 FORTE = ROOT / "profiles" / "forte.yaml"

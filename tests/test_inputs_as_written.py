@@ -16,10 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ruamel.yaml import YAML
 
-from rig import config, profiles
 from rig.errors import InputError
+from rig.inputs import config, profiles
+from rig.inputs.params import Parameters, _load_yaml_text
 from rig.model.action import ActionModel
-from rig.params import Parameters, _load_yaml_text
 
 
 @pytest.mark.parametrize("text, value", [

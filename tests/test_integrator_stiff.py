@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from rig import profiles
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
 from rig.model.action import ActionModel, SimResult
 from rig.model.integration import by_name
@@ -28,7 +29,6 @@ from rig.model.integrators_stiff import (
     _spectral_radius,
     jacobian,
 )
-from rig.params import Parameters
 
 FULL = ["flexible_shank", "key_liftoff"]
 

@@ -12,10 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from rig import config, runfile
 from rig.calibration import records as cal_records
+from rig.inputs import config
 from rig.loop import journal
 from rig.loop.acquisition import Acquisition
+from rig.recordings import runfile
 from rig.sensors import table as calrecords
 from rig.sim_backend.daq import row_width
 

@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
 from rig.model.action import ActionModel
 from rig.model.integrators import DormandPrince, RungeKutta4, ScipyIntegrator
-from rig.params import Parameters
 
 G = 9.81
 JOINTS = ("key", "whippen", "jack", "repetition", "hammer")

@@ -33,9 +33,10 @@ from nidaqmx.constants import (
     TriggerType,
 )
 
-from rig import backends, config
 from rig.daq import DaqFault
 from rig.errors import InputError
+from rig.inputs import config
+from rig.loop import backends
 from rig.ni_backend.daq import bridge_calibration
 from rig.services import run as run_service
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig import profiles
-from rig.params import Parameters
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 
 
 def write(tmp_path, text, name="p.yaml"):

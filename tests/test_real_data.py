@@ -212,8 +212,8 @@ def _motion_only(truth: ActionModel, radius: float = 0.0093, top: float = 0.9
     at an unknown ``radius`` that saturates at ``top`` of its travel (2 um noise, then the
     clip, as a lookup table's end leaves it); the hammer's motion is ``truth``'s own,
     driven by that key motion."""
-    from rig import profiles
     from rig.analysis import synth as sy
+    from rig.inputs import profiles
 
     st = sy.synth_trial(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
                         sy.default_rig(), 3, 0.15, True, 1.0)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import config
+from rig.inputs import config
 
 
 def write(tmp_path: Path, text: str) -> Path:

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from rig import config, runfile
+from rig.inputs import config
 from rig.loop.drive import Drive, DriveError
+from rig.recordings import runfile
 from rig.services import run as svc
 
 

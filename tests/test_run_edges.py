@@ -11,8 +11,8 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import config
 from rig.cli import app
+from rig.inputs import config
 
 PROFILE = "name: p\nsegments:\n  - {hold: 0.02}\n  - {ramp: 0.05, to: 5}\n  - {ramp: 0.05, to: 0}\n"
 

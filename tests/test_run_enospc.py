@@ -19,10 +19,11 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from rig import config, runfile
 from rig.cli import app
 from rig.errors import InputError
+from rig.inputs import config
 from rig.loop import journal
+from rig.recordings import runfile
 from rig.sim_backend.rig_process import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"

@@ -354,7 +354,8 @@ def test_existing_out_file_is_not_overwritten_without_force(tmp_path: Path) -> N
 
 @pytest.mark.slow
 def test_only_the_cut_trial_is_aborted_and_no_repeatability(tmp_path: Path) -> None:
-    from rig import config, runfile
+    from rig.inputs import config
+    from rig.recordings import runfile
     from rig.services import run as svc
 
     prof = tmp_path / "short.yaml"
@@ -439,7 +440,7 @@ def test_disk_full_mid_run_keeps_what_was_written(tmp_path: Path, small_fs: Path
 def test_a_drive_that_does_not_answer_ends_the_run_within_2_s(tmp_path: Path) -> None:
     import threading
 
-    from rig import config
+    from rig.inputs import config
     from rig.services import run as svc
 
     master, slave = os.openpty()  # a serial line with nothing answering on it
@@ -476,7 +477,7 @@ def test_a_drive_that_does_not_answer_ends_the_run_within_2_s(tmp_path: Path) ->
 
 
 def test_run_file_names_stay_in_the_data_folder_and_are_claimed_once(tmp_path: Path) -> None:
-    from rig import config, profiles
+    from rig.inputs import config, profiles
     from rig.services import run as svc
 
     cfg = config.from_mapping({"backend": "sim", "data_folder": str(tmp_path / "runs")})

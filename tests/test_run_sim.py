@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import config, profiles, runfile
 from rig.cli import app
+from rig.inputs import config, profiles
 from rig.model.action import ActionModel
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 from rig.services import run as svc
 

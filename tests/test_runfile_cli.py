@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from rig import runfile
 from rig.cli import app
 from rig.model.action import CHANNEL_UNITS, EVENT_ORDER
+from rig.recordings import runfile
 
 ROOT_CHANNELS = ("time", "force", "key_angle", "whippen_angle", "jack_angle", "repetition_angle",
                  "hammer_angle", "hammer_head_velocity", "contact_force")
@@ -162,8 +162,8 @@ def test_xarray_opens_a_synthetic_run_with_described_channels(tmp_path):
     xr = pytest.importorskip("xarray")
     from pathlib import Path
 
-    from rig import profiles
     from rig.analysis import synth
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     prof = profiles.load(Path(__file__).resolve().parents[1] / "profiles" / "forte.yaml")

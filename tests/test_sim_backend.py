@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig import config, loadcell, strain
+from rig import loadcell, strain
+from rig.inputs import config
 from rig.sim_backend.fifo import BufferOverflow, SharedFifo
 from rig.sim_backend.sensors import SensorSet
 

@@ -25,7 +25,7 @@ import json, sys
 import numpy as np
 from rig.model import cache_loading
 from rig.model.action import ActionModel
-from rig import profiles
+from rig.inputs import profiles
 m = ActionModel.from_yaml(None)
 p = profiles.load(sys.argv[1])
 r = m.simulate(p, 0.02)

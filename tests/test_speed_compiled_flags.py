@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import profiles
+from rig.inputs import profiles
+from rig.inputs.params import Parameters
 from rig.model import integrators as itg
 from rig.model import integrators_stiff as ist
 from rig.model import kernel as k
 from rig.model.action import ActionModel
-from rig.params import Parameters
 
 HOT = [k.rhs, k.sample_outputs, k.energy, itg.force_at, itg._hermite, ist.ros_run, ist.jacobian,
        ist._lu, ist._lu_solve, ist._force_slope, ist._spectral_radius, ist.axial_advance]

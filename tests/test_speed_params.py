@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from rig import params as params_mod
+from rig.inputs import params as params_mod
+from rig.inputs.params import Parameters
 from rig.model.effects import make
-from rig.params import Parameters
 from rig.services import simulate as svc
 
 THESIS_D4 = 2.446  # contacts.4.D, the back check's damping, thesis Table A.4

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rig.inputs.params import Parameters
 from rig.model import action, restcache
 from rig.model.action import ActionModel
-from rig.params import Parameters
 
 
 @pytest.fixture

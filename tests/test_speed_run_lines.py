@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from rig import config
+from rig.inputs import config
 from rig.services import run as svc
 
 pytestmark = pytest.mark.realtime  # what these tests cost (pyproject.toml)

@@ -37,7 +37,7 @@ for name, disp in (("rhs", k.rhs), ("rosenbrock", integrators_stiff.ros_run),
         return _load(sig, ctx)
 
     disp._cache.load_overload = record
-from rig import profiles
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 m = ActionModel.from_yaml(None, effects=["flexible_shank", "key_liftoff"],
                           integrator=sys.argv[2])

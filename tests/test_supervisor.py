@@ -8,7 +8,7 @@ import sys
 import time
 from typing import Any
 
-from rig import config
+from rig.inputs import config
 from rig.loop.supervisor import ControllerWatch, make_safe
 from rig.sim_backend.drive_pty import SimDrive
 from rig.sim_backend.drive_state import DriveState

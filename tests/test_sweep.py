@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from rig.analysis import sweep as sw
-from rig.executor import DaskExecutor, LocalExecutor, executor_for, run_all
+from rig.analysis.executor import DaskExecutor, LocalExecutor, executor_for, run_all
 
 distributed = pytest.importorskip("distributed")
 
@@ -295,7 +295,7 @@ def test_worked_sweep_from_the_docs_locally_and_on_the_cluster(cluster, tmp_path
 
 def test_the_density_axis_is_truly_inert(tmp_path):
     """Independent of SALib: two blows at the density's ends give identical metrics."""
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     model = ActionModel()
@@ -368,12 +368,12 @@ def test_diagnose_and_fit_on_the_cluster_equal_local_processes(cluster, tmp_path
     # worker-lost retry is the seam's, tested on the sweep above)
     from typer.testing import CliRunner
 
-    from rig import profiles
     from rig.analysis import diagnose as dg
     from rig.analysis import fit as ft
     from rig.analysis import measurement as ms
     from rig.analysis import synth
     from rig.cli import app
+    from rig.inputs import profiles
     from rig.model.action import ActionModel
 
     lc, client = cluster

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from rig.errors import InputError
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
 from rig.model import touch
 from rig.model.action import ActionModel
-from rig.params import Parameters
 
 ROOT = Path(__file__).resolve().parents[1]
 FRICTION_OFF = {**{f"contacts.{i}.A": 0.0 for i in (1, 4, 7, 10)},
@@ -312,8 +312,8 @@ def test_cli_prints_and_emits_json(tmp_path, base):
 def test_sweep_reports_touch_and_a_heavier_hammer_raises_it():
     """rig sweep --touch: each row's model gives its touch weights beside the blow's metrics;
     a heavier hammer head raises the down- and up-weight and the strike weight."""
-    from rig import profiles
     from rig.analysis import sweep as sw
+    from rig.inputs import profiles
 
     axes = [sw.Axis.parse("bodies.hammer_head.mass=0.007:0.009")]
     study = sw.action_study(ActionModel(), profiles.load(ROOT / "profiles" / "forte.yaml"),
@@ -340,7 +340,7 @@ def test_slow_force_ramp_starts_the_key_near_the_static_down_weight():
     thresholds are lowered so that its regularised laws act nearly as Coulomb friction at
     creep speeds. The key front is 0.25 mm down (the stroke's first point) at a force near
     the static down force there, and closer to it the lower the thresholds."""
-    from rig import profiles
+    from rig.inputs import profiles
 
     ramp = profiles.from_points([[0.0, 0.0], [4.0, 0.070 * touch.G0]], name="ramp")
     gaps = []

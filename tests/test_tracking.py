@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rig import backends, config, profiles
 from rig.control import feedback, ilc, offline
 from rig.errors import InputError
+from rig.inputs import config, profiles
+from rig.loop import backends
 
 CFG = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"}})
 HZ = 500.0
@@ -279,8 +280,8 @@ def _rig(args: list[str], cwd) -> subprocess.CompletedProcess[str]:
 
 @pytest.mark.slow
 def test_rig_run_learn_saves_a_record_that_a_later_run_uses(tmp_path):
-    from rig import runfile
     from rig.control import records
+    from rig.recordings import runfile
     from rig.services import run as run_svc
 
     (tmp_path / "rig.yaml").write_text(
@@ -406,8 +407,8 @@ def test_ctrl_c_during_learning_keeps_what_was_learned(tmp_path, monkeypatch):
     import os
     import signal
 
-    from rig import runfile
     from rig.control import records
+    from rig.recordings import runfile
     from rig.services import learn as learn_svc
     from rig.services import run as run_svc
 
@@ -640,8 +641,8 @@ def test_the_pi_is_designed_from_the_motor_calibration_in_use():
 @pytest.mark.slow
 def test_rig_run_designs_its_pi_from_the_motor_calibration_and_records_it(tmp_path,
                                                                           monkeypatch):
-    from rig import runfile
     from rig.calibration import records as cal_records
+    from rig.recordings import runfile
     from rig.services import calibrate as cal_svc
     from rig.services import learn as learn_svc
     from rig.services import run as run_svc

@@ -9,4 +9,5 @@
     diagnose/       which library effect removes the residual (held-out ranking)
     synth.py        measurement-like run files from a hidden truth model
     report.py       self-contained interactive HTML reports (Plotly)
+    executor.py     where many independent evaluations run: local processes or Dask
 """

@@ -34,7 +34,7 @@ from rig.model.effects import Effect
 from rig.model.integrators import Integrator
 
 if TYPE_CHECKING:
-    from rig.executor import Executor
+    from rig.analysis.executor import Executor
 
 FAILED_PENALTY = 1.0
 ALIGN_S = 0.0  # residual (in channel ranges) of samples a failed simulation lacks
@@ -417,7 +417,7 @@ class FitResult:
         return self.status > 0
 
 
-# -- the residual at a point: a module-level task for the executor seam (rig.executor) ------
+# -- the residual at a point: a module-level task for the executor seam (rig.analysis.executor) --
 def _residual_at(problem: tuple[Any, ...], u: np.ndarray) -> np.ndarray:
     """The residual vector of ``problem`` = (base, add, targets, rate, data) at ``u``."""
     base, add, targets, rate, data = problem
@@ -437,7 +437,7 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
     in ``scan_labels``) one at a time for a better start. With ``input_noise_draws`` > 1
     the uncertainties include the input force's noise (``input_noise_cov``).
 
-    The Jacobian's columns run on ``executor`` (rig.executor: local processes or a Dask
+    The Jacobian's columns run on ``executor`` (rig.analysis.executor: local processes or a Dask
     cluster; the problem travels once per worker) or, without one, on ``jobs`` local
     processes (1: here)."""
     extra = [a if isinstance(a, Effect) else a() for a in add]
@@ -462,7 +462,7 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         last[:] = [(u.copy(), r)]
         return r
 
-    from rig.executor import LocalExecutor, run_all
+    from rig.analysis.executor import LocalExecutor, run_all
 
     own = executor is None and (jobs is None or jobs > 1) and len(targets) > 1
     ex = LocalExecutor(jobs) if own else executor

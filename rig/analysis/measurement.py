@@ -17,10 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from rig import profiles, runfile
 from rig.analysis import events
 from rig.errors import InputError
+from rig.inputs import profiles
 from rig.model.action import ActionModel, SimResult
+from rig.recordings import runfile
 
 INPUTS = ("force", "command", "motion")
 RAW_UNITS = {"V/V", "V", "counts", "1", ""}

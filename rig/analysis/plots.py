@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from rig.display import DISPLAY, scale  # noqa: F401 (re-exported for the report)
+from rig.sensors.display import DISPLAY, scale  # noqa: F401 (re-exported for the report)
 
 PHASE_COLOURS = ("#eeeeee", "#d6e4f5", "#fbe0cc", "#dcefd2", "#fff0bf", "#e7cff4", "#d2f0f0")
 MODEL_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2")

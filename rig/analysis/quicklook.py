@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
 from rig.analysis import plots as pl
 from rig.errors import InputError
+from rig.recordings import runfile
 
 
 def parse_window(text: str | None) -> tuple[float, float] | None:

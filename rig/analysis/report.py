@@ -67,7 +67,7 @@ class Provenance:
         return str(self.run_attrs.get("kind", "measured"))
 
     def html(self) -> str:
-        from rig.runfile import git_commit
+        from rig.recordings.runfile import git_commit
         from rig.version import __version__
 
         a = self.run_attrs

@@ -29,8 +29,8 @@ from typing import Any
 import h5py
 import numpy as np
 
+from rig.analysis.executor import Executor
 from rig.errors import InputError
-from rig.executor import Executor
 
 DESIGNS = ("grid", "lhs", "sobol")
 FORMAT = "rig-sweep-1"

@@ -23,11 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from rig import config as rig_config
-from rig import profiles, runfile
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs import config as rig_config
+from rig.inputs import profiles
+from rig.inputs.config import RigConfig
 from rig.model.action import ActionModel, SimResult
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.sensors import SensorSet

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import RigConfig
 from rig.daq import Bench
+from rig.inputs.config import RigConfig
 
 UNITS = {"raw": "counts", "key_dip": "m", "angle": "rad", "slope": "rad/m"}
 

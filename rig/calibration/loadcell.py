@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 
 from rig.calibration.settings import LoadCellCal
-from rig.config import RigConfig
 from rig.daq import Bench, bridge_range
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 
 
 @dataclass(frozen=True)

@@ -32,10 +32,10 @@ from scipy import optimize, signal
 from rig import loadcell as loadcell_mod
 from rig import motor_torque
 from rig.calibration.settings import MotorCal
-from rig.config import RigConfig
 from rig.daq import Bench
 from rig.errors import InputError
-from rig.profiles import Profile
+from rig.inputs.config import RigConfig
+from rig.inputs.profiles import Profile
 
 UNITS = {"raw": "N (demand)", "calibrated": "N", "sensitivity": "N per N of demand",
          "offset": "N", "lag": "s", "time": "s"}

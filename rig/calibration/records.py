@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from rig.calibration.settings import records_folder, settings_for
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 from rig.sensors.table import CalRecord, nominal
 from rig.version import __version__
 
@@ -83,7 +83,7 @@ def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: 
           extra: dict[str, Any] | None = None,
           created: _dt.datetime | None = None) -> dict[str, Any]:
     """A complete record (with its content hash) ready to ``write``."""
-    from rig.runfile import git_commit
+    from rig.recordings.runfile import git_commit
 
     if sensor not in SENSORS:
         raise InputError(f"sensor: expected one of {SENSORS}, got {sensor!r}")

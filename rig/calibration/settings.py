@@ -2,7 +2,7 @@
 
 The rig configuration carries them as its ``calibration:`` section
 (``RigConfig.calibration: CalibrationSettings``, defined with the rest of the
-configuration's schema in rig.config and documented in docs/rig-config.md);
+configuration's schema in rig.inputs.config and documented in docs/rig-config.md);
 records live in ``<data_folder>/calibrations`` unless ``records_folder`` says
 otherwise. SI units; tolerances are half-widths of
 rectangular distributions (data-sheet style).
@@ -13,7 +13,7 @@ from __future__ import annotations
 import getpass
 from pathlib import Path
 
-from rig.config import (  # noqa: F401 - the calibration section's schema, re-exported
+from rig.inputs.config import (  # noqa: F401 - the calibration section's schema, re-exported
     SENSORS,
     CalibrationSettings,
     LoadCellCal,

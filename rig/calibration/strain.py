@@ -27,9 +27,9 @@ import numpy as np
 
 from rig import strain as strain_mod
 from rig.calibration.settings import StrainCal
-from rig.config import RigConfig
 from rig.daq import Bench, bridge_range
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 from rig.strain import shunt_equivalent_strain
 
 UNITS = {"raw": "V/V", "calibrated": "m/m", "sensitivity": "gauge factor (1)",

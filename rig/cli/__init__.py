@@ -139,7 +139,7 @@ def import_cmd(
                f"{r.sha256[:16]}" + (f"; clipped to the lookup table: {clipped}" if clipped
                                      else ""))
     if res.segment_channel is not None:
-        from rig import display
+        from rig.sensors import display
 
         k, u = display.scale(res.segment_units)
         _plain(f"strokes found on {res.segment_channel}:")
@@ -324,7 +324,7 @@ def run_profile(
     """Press the key with PROFILE on the rig and record everything into a run file.
 
     Exit codes: 0 complete, 1 aborted (last line ``ABORTED: <reason>``), 2 refused input."""
-    from rig import config as rig_config
+    from rig.inputs import config as rig_config
     from rig.services import run as svc
 
     try:

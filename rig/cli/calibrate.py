@@ -30,7 +30,7 @@ def _say(text: str) -> None:
 
 
 def _rig_for_calibration(rig: Path | None):  # noqa: ANN202 - returns RigConfig
-    from rig import config as rig_config
+    from rig.inputs import config as rig_config
 
     try:
         cfg, which = rig_config.resolve(rig)
@@ -52,9 +52,9 @@ def calibrate_loadcell(
     records_dir: _RecordsOpt = None,
 ) -> None:
     """Known masses, loading then unloading (>= 5 points): fit, spec figures, uncertainty."""
-    from rig.backends import open_bench
     from rig.calibration.loadcell import read_csv
     from rig.calibration.settings import settings_for
+    from rig.loop.backends import open_bench
     from rig.services import calibrate as svc
 
     cfg = _rig_for_calibration(rig)

@@ -21,7 +21,7 @@ err = Console(stderr=True, soft_wrap=True)
 
 def _version(value: bool) -> None:
     if value:
-        from rig.runfile import git_commit
+        from rig.recordings.runfile import git_commit
         from rig.version import __version__
 
         console.print(f"rig {__version__} (git {git_commit()[:12]})", markup=False,

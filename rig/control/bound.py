@@ -39,9 +39,9 @@ import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 from scipy.sparse import coo_matrix, csr_matrix, hstack, identity, vstack
 
-from rig.config import Limits
 from rig.control import plant
 from rig.errors import InputError
+from rig.inputs.config import Limits
 
 SWITCH_STEP_N = 1e-3   # the smallest demand change a mode switch is counted with (N)
 

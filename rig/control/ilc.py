@@ -92,9 +92,9 @@ import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.signal import butter, filtfilt
 
-from rig.config import Limits
 from rig.control import bound, plant
 from rig.errors import InputError
+from rig.inputs.config import Limits
 
 DEFAULT_GAIN_K = 0.9322        # N/N, actuator.process_model_all K of the thesis (Eq. D.1)
 DEFAULT_LEARNING_FACTOR = 1.0  # fraction of the error (divided by K) learned per trial

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.config import Limits
+from rig.inputs.config import Limits
 from rig.motor_torque import Limiter
 from rig.sim_backend.drive_model import DriveModel
 

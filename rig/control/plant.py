@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 
 from rig.errors import InputError
+from rig.inputs.params import Parameters
 from rig.motor_torque import process_discrete
-from rig.params import Parameters
 
 # the thesis's time unit of Tw and Tp3 (2 ms loop periods; rig.sim_backend.drive_model)
 THESIS_TIME_UNIT_S = 0.002

@@ -27,10 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import profiles
 from rig.calibration.records import content_hash, json_ready, rig_identity
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs import profiles
+from rig.inputs.config import RigConfig
 
 FORMAT = "rig-learned-feedforward"
 FORMAT_VERSION = 1

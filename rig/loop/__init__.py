@@ -3,5 +3,5 @@
 ``acquisition`` (the acquisition process), ``journal`` (the run file's journal and
 ``rig recover``), ``recovery`` (the run's end), ``supervisor`` (safe when the loop dies),
 ``hook`` (the loop's controller hook), ``drive`` (the drive's serial link), ``scheduling``
-(the loop thread's OS set-up).
+(the loop thread's OS set-up), ``backends`` (the one place choosing a backend).
 """

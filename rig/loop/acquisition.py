@@ -43,13 +43,13 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
-from rig.backends import open_reader
-from rig.config import RigConfig, from_mapping
 from rig.daq import DaqFault
 from rig.errors import InputError, RigError
+from rig.inputs.config import RigConfig, from_mapping
 from rig.loop import journal
+from rig.loop.backends import open_reader
 from rig.loop.supervisor import ControllerWatch, make_safe
+from rig.recordings import runfile
 from rig.sensors import table as sensor_table
 from rig.sensors.table import COMMAND_DOCS, COMMAND_UNITS, CalRecord
 

@@ -14,8 +14,8 @@ import time
 
 import serial
 
-from rig.config import DriveLink
 from rig.errors import InputError, RigError
+from rig.inputs.config import DriveLink
 
 
 class DriveError(RigError, RuntimeError):

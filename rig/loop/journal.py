@@ -53,8 +53,8 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
 from rig.errors import InputError
+from rig.recordings import runfile
 
 MAGIC = b"RIGJRNL1"
 HEAD = struct.Struct("<4sIQI")

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
-from rig.config import RigConfig
+from rig.inputs.config import RigConfig
 from rig.loop import journal
+from rig.recordings import runfile
 from rig.sensors.table import COMMAND_DOCS, COMMAND_UNITS
 
 COLUMNS = tuple(COMMAND_UNITS)  # a loop record's columns (the run file's commands/) ...

@@ -19,8 +19,8 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 
 
 def realtime_priority(priority: int, tid: int = 0) -> bool:

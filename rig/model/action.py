@@ -28,8 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from rig import profiles as _profiles
 from rig.errors import InputError
+from rig.inputs import profiles as _profiles
+from rig.inputs.params import Parameters
 from rig.model import assembly, modelfile, restcache
 from rig.model import kernel as k
 from rig.model.effects import Build, Effect, make
@@ -45,7 +46,6 @@ from rig.model.vocabulary import (  # noqa: E402,F401 - the vocabulary, re-expor
     EVENT_ORDER,
     KEY_MOVE_THRESHOLD_M,
 )
-from rig.params import Parameters
 
 # rest states by equations_key: models with identical equations (a fit varying an input
 # or sensor parameter) settle the action once

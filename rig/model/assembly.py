@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.errors import InputError
+from rig.inputs.params import Parameters
 from rig.model import kernel as k
-from rig.params import Parameters
 
 BODY_FRAME = {
     "ground": k.F_GROUND,

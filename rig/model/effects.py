@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from rig.errors import InputError, not_a_file
-from rig.params import Parameters
+from rig.inputs.params import Parameters
 
 if TYPE_CHECKING:
     from rig.model.action import SimResult

@@ -45,7 +45,7 @@ from rig.errors import InputError
 from rig.model.effects import BUILTIN, Effect, EffectParameter, EffectState, Signature
 
 if TYPE_CHECKING:
-    from rig import profiles
+    from rig.inputs import profiles
     from rig.model.action import ActionModel, SimResult
 
 MM = 1e-3  # m per mm

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rig.errors import InputError
-from rig.params import load_yaml_file
+from rig.inputs.params import load_yaml_file
 
 KEYS = ("parameters", "effects", "integrator", "description")
 

@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rig import profiles
 from rig.errors import InputError
-from rig.params import Parameters, load_yaml_file
+from rig.inputs import profiles
+from rig.inputs.params import Parameters, load_yaml_file
 
 if TYPE_CHECKING:
     from rig.model.action import ActionModel, SimResult

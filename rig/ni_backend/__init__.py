@@ -4,5 +4,5 @@
             NiReader (acquisition side: SCXI-1520 bridges, PCI-6602 encoders, 2 kHz)
     bench   NiBench: what the calibration procedures read on the real rig
 
-Same inner layout as ``rig.sim_backend``; ``rig.backends`` chooses between them.
+Same inner layout as ``rig.sim_backend``; ``rig.loop.backends`` chooses between them.
 """

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import RigConfig
 from rig.daq import Bench, Live, check_bridge
+from rig.inputs.config import RigConfig
 from rig.ni_backend import channels
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from rig.config import Encoder, LoadCell, StrainGauge
+from rig.inputs.config import Encoder, LoadCell, StrainGauge
 from rig.sensors.table import NiSetup, Sensor
 
 

@@ -56,9 +56,9 @@ from nidaqmx.constants import (
 )
 from nidaqmx.error_codes import DAQmxErrors
 
-from rig.config import RigConfig, from_mapping
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
+from rig.inputs.config import RigConfig, from_mapping
 from rig.ni_backend import channels
 from rig.sensors import table as sensor_table
 

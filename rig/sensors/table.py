@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 
 from rig import encoders, loadcell, strain
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 
 
 @dataclass(frozen=True)

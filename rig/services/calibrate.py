@@ -11,13 +11,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from rig.backends import open_bench
 from rig.calibration import loadcell as lc
 from rig.calibration import records
 from rig.calibration.settings import operator_name, records_folder, settings_for
-from rig.config import RigConfig
 from rig.daq import Bench
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
+from rig.loop.backends import open_bench
 
 Live = Callable[[float], None] | None
 
@@ -178,8 +178,8 @@ def calibrate_motor(cfg: RigConfig, *, bench: Bench | None = None, operator: str
                     ) -> tuple[Any, Path, dict[str, dict[str, float]]]:
     """Steps and ramps on a static surface -> map, lag, dynamic model; tracking of a forte
     profile before (demand = profile) and after (map + lag); one record."""
-    from rig import profiles
     from rig.calibration import motor
+    from rig.inputs import profiles
 
     s = settings_for(cfg).motor
     own = bench is None

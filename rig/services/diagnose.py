@@ -24,7 +24,7 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
     """Diagnose the model (the rigid base model if none) against the run's trials; the
     candidates' fits run on local processes or the Dask cluster at ``scheduler`` (else
     ``$RIG_SCHEDULER``)."""
-    from rig.executor import executor_for
+    from rig.analysis.executor import executor_for
 
     model = ActionModel.from_yaml(model_file)
     extra_classes = [type(make(e, Path.cwd())) for e in extra]

@@ -22,7 +22,7 @@ def fit(runs: Sequence[Path], model_file: Path | None, params: Sequence[str], *,
     """Fit ``params`` on every trial of every run; the Jacobian's columns run on local
     processes (one per core) or the Dask cluster at ``scheduler`` (else
     ``$RIG_SCHEDULER``)."""
-    from rig.executor import executor_for
+    from rig.analysis.executor import executor_for
 
     if not runs:
         raise InputError("runs: expected at least one run file")

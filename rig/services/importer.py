@@ -19,11 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from rig import runfile
 from rig.analysis import events
 from rig.errors import InputError, refuse_existing
 from rig.recordings import calibration as cal
-from rig.recordings import mapfile, readers
+from rig.recordings import mapfile, readers, runfile
 from rig.recordings import segment as sg
 from rig.recordings.channels import EVENT_DOCS
 

@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from rig import display, runfile
+from rig.recordings import runfile
+from rig.sensors import display
 
 
 def read(path: Path) -> runfile.Run:

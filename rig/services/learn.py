@@ -33,13 +33,14 @@ from typing import Any
 
 import numpy as np
 
-from rig import profiles, runfile
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
-from rig.config import RigConfig
 from rig.control import ilc, plant
 from rig.control import records as learned_records
 from rig.errors import InputError
+from rig.inputs import profiles
+from rig.inputs.config import RigConfig
+from rig.recordings import runfile
 from rig.services import run as run_svc
 
 

@@ -41,19 +41,21 @@ from typing import Any
 
 import numpy as np
 
-from rig import loadcell, motor_torque, profiles, runfile
+from rig import loadcell, motor_torque
 from rig.analysis import events
-from rig.backends import check_drive_port, open_daq, open_drive_port, reader_calibration
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
-from rig.config import RigConfig
 from rig.daq import Daq
 from rig.errors import InputError, RigError
+from rig.inputs import profiles
+from rig.inputs.config import RigConfig
 from rig.loop import journal, recovery, scheduling
 from rig.loop.acquisition import run_acquisition
+from rig.loop.backends import check_drive_port, open_daq, open_drive_port, reader_calibration
 from rig.loop.drive import Drive, DriveError, DriveMonitor
 from rig.loop.hook import Controller, load_controller
 from rig.model.vocabulary import EVENT_DOCS
+from rig.recordings import runfile
 
 
 def enable_at_zero(daq: Daq, drive: Drive, say: Callable[[str], None]) -> None:

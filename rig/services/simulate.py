@@ -5,8 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from rig import profiles, runfile
+from rig.inputs import profiles
 from rig.model.action import ActionModel, SimResult
+from rig.recordings import runfile
 
 
 def build_model(model_file: Path | None, effects: Sequence[str] = (),

@@ -6,10 +6,10 @@ import hashlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from rig import profiles
 from rig.analysis import sweep as sw
+from rig.analysis.executor import executor_for
 from rig.errors import InputError
-from rig.executor import executor_for
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 
 

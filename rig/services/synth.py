@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from rig import config as rig_config
-from rig import profiles
 from rig.analysis import synth as sy
+from rig.inputs import config as rig_config
+from rig.inputs import profiles
 from rig.model.action import ActionModel
 
 

@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 
 from rig import strain as strain_mod
-from rig.config import RigConfig
 from rig.daq import Bench, Live, bridge_range, check_bridge
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 from rig.sensors import table as sensor_table
 
 

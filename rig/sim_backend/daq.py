@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import RigConfig
 from rig.daq import Daq, DaqFault, Reader, Tick
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 from rig.model.action import ActionModel
 from rig.sensors import table as sensor_table
 from rig.sim_backend import clock

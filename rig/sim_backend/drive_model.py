@@ -58,8 +58,8 @@ import math
 import numpy as np
 
 from rig.errors import InputError
+from rig.inputs.params import THESIS_TIME_UNIT_S, Parameters
 from rig.motor_torque import process_coefficients, process_discrete, thesis_process, zoh
-from rig.params import THESIS_TIME_UNIT_S, Parameters
 
 VARIANTS = ("single", "asymmetric", "step_size")
 STEP_SIZE_REFERENCE_N = 10.0   # the step size of Fig. D.1 that Eq. D.1 was identified on

@@ -15,7 +15,7 @@ import select
 import threading
 import tty
 
-from rig.config import DriveLink
+from rig.inputs.config import DriveLink
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.rig_process import DRIVE_LOG_ENV, DriveLog
 

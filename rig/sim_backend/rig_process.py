@@ -184,7 +184,7 @@ class SharedDriveState:
 def run_plant(cfg_data: dict[str, Any], link_spec: tuple[str, int],
               fifo_spec: tuple[str, int, int]) -> None:
     """Entry point of the plant process: simulate each control period once its demand is in."""
-    from rig.config import from_mapping
+    from rig.inputs.config import from_mapping
     from rig.sim_backend.fifo import SharedFifo
     from rig.sim_backend.simrig import SimRig
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from rig.config import RigConfig
+from rig.inputs.config import RigConfig
 from rig.sensors.table import Sensor, sensors
 
 

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from rig.config import RigConfig
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 from rig.model.action import ActionModel
 from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel

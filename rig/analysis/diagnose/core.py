@@ -39,7 +39,7 @@ from rig.model.action import ActionModel
 from rig.model.effects import Effect
 
 if TYPE_CHECKING:
-    from rig.executor import Executor
+    from rig.analysis.executor import Executor
 
 
 def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
@@ -117,7 +117,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         return (f"the effects chosen so far fit better at the values a candidate's joint "
                 f"refit found for them ({moved}); the round was fitted again from there")
 
-    from rig.executor import LocalExecutor
+    from rig.analysis.executor import LocalExecutor
 
     ex = executor if executor is not None else LocalExecutor(jobs)
     try:

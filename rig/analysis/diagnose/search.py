@@ -24,7 +24,7 @@ from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect
 
 if TYPE_CHECKING:
-    from rig.executor import Executor
+    from rig.analysis.executor import Executor
 
 
 def candidates_for(base: ActionModel, names: Sequence[str] | None = None,

@@ -9,9 +9,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from rig.config import RigConfig
 from rig.daq import Bench, Daq, Reader
 from rig.errors import InputError
+from rig.inputs.config import RigConfig
 
 BACKENDS = ("ni", "sim")
 

@@ -20,15 +20,16 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rig.errors import InputError
-from rig.params import THESIS_TIME_UNIT_S, load_yaml_file
+from rig.inputs.params import THESIS_TIME_UNIT_S, load_yaml_file
 
 # Strict numbers (no bool, no numeric text) that must be finite: ``control_hz: true`` or
 # ``buffer_s: .inf`` are refused rather than read as 1 Hz or an endless buffer.
 _STRICT_FINITE = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
-# The run's own channel names (rig/loop/acquisition.py, rig/sensors/table.py, rig/runfile.py): an
-# encoder channel named like one of them would replace the load-cell force, the sample
-# counter or the time base in the run file and blind the analysis and the safety checks.
+# The run's own channel names (rig/loop/acquisition.py, rig/sensors/table.py,
+# rig/recordings/runfile.py): an encoder channel named like one of them would replace the
+# load-cell force, the sample counter or the time base in the run file and blind the
+# analysis and the safety checks.
 RESERVED_CHANNELS = frozenset({
     "time", "sample", "force", "load_cell_ratio", "strain_ratio", "shank_strain",
     "tick", "target", "feedforward", "demand", "volts", "limited", "measured_force",

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from rig.errors import InputError, not_a_file
-from rig.params import load_yaml_file, read_text_file
+from rig.inputs.params import load_yaml_file, read_text_file
 
 DEFAULT_FORCE_LIMIT_N = 120.0  # the motor's peak force on the key (thesis, Section 2.1)
 DEFAULT_MAX_DURATION_S = 60.0  # the rig config's limits.max_profile_s default
