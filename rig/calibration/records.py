@@ -32,7 +32,7 @@ from rig.version import __version__
 
 FORMAT = "rig-calibration"
 FORMAT_VERSION = 1
-SENSORS = ("load_cell", "strain_gauge", "motor", "encoders")
+SENSORS = ("load_cell", "strain_gauge", "motor", "encoders", "touch")
 
 
 class MissingCalibration(InputError, RuntimeError):

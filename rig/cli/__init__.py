@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import typer
 
 from rig.cli import calibrate as _calibrate  # noqa: F401 - registers rig calibrate / check
+from rig.cli import measure as _measure  # noqa: F401 - registers rig measure touch
 from rig.cli.common import (
     _analysis_progress,
     _bar,

@@ -45,6 +45,7 @@ from rig import loadcell, motor_torque
 from rig.analysis import events
 from rig.calibration import motor as motor_cal
 from rig.calibration import records as cal_records
+from rig.calibration.settings import records_folder
 from rig.daq import Daq
 from rig.errors import InputError, RigError
 from rig.inputs import profiles
@@ -281,7 +282,7 @@ def learned_record(profile_path: Path, cfg: RigConfig) -> tuple[dict[str, Any], 
     return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
 
 
-def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
+def run(profile_path: Path | profiles.Profile, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
         on_cycle: Callable[[CycleContext], None] | None = None,
@@ -294,13 +295,22 @@ def run(profile_path: Path, cfg: RigConfig, *, trials: int = 1, out: Path | None
     file's ``abort_traceback`` metadata). A stop
     before the acquisition has started raises ``RunStopped`` (no run file is left).
     ``learned``: a learned-feedforward record (rig.control.records) whose table is the
-    feedforward instead of the advance or the motor compensation."""
+    feedforward instead of the advance or the motor compensation. ``profile_path`` may be a
+    built ``profiles.Profile`` (``rig measure touch``'s ramps), checked against the same
+    limits."""
     say = on_line or (lambda s: None)
     journal.set_process("run")
     if trials < 1:
         raise InputError(f"trials: expected at least 1, got {trials}")
-    profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
-                            max_duration=cfg.limits.max_profile_s)
+    if isinstance(profile_path, profiles.Profile):
+        profile = profile_path
+        if profile.peak > cfg.limits.max_force_n or profile.duration > cfg.limits.max_profile_s:
+            raise InputError(f"profile: {profile.name} ({profile.peak:g} N, "
+                             f"{profile.duration:g} s) is over the rig's limits.max_force_n or "
+                             f"limits.max_profile_s")
+    else:
+        profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n,
+                                max_duration=cfg.limits.max_profile_s)
     motor_torque.check_profile(profile, cfg.limits, cfg.loop.advance_s)
     check_drive_port(cfg)
     ctl = controller or load_controller(cfg.loop.controller)
@@ -378,6 +388,9 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         **bridge_spec}
     if learned is not None:  # the learned-feedforward record in use, embedded whole
         metadata["learned_feedforward"] = learned
+    touch_record = cal_records.newest_valid(records_folder(cfg), "touch", cfg)
+    if touch_record is not None:  # the action's feel as last measured (rig measure touch)
+        metadata["touch_record"] = touch_record[0]
 
     cpu = scheduling.loop_cpu(cfg, say)
     daq = open_daq(cfg, lockstep=lockstep, on_line=say)

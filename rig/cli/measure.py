@@ -1,0 +1,72 @@
+"""`rig measure touch` (parsing and printing; the work is in rig.services.measure_touch)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from rig.cli.calibrate import _OperatorOpt, _RecordsOpt, _rig_for_calibration, _RigOpt, _say
+from rig.cli.common import _emit_json, _fail, _JsonOpt, app
+
+measure_app = typer.Typer(no_args_is_help=True,
+                          help="Measure the action on the rig; writes a record runs embed.")
+app.add_typer(measure_app, name="measure")
+
+
+@measure_app.command("touch")
+def measure_touch(
+    rig: _RigOpt = None,
+    trials: Annotated[int, typer.Option(help="presses (2 or more: the spread)")] = 5,
+    from_g: Annotated[float, typer.Option(
+        "--from", help="g at the key top where the slow ramp up begins (under the "
+                       "down-weight)")] = 25.0,
+    to_g: Annotated[float, typer.Option(
+        "--to", help="g at the key top where the ramp up ends (over the down-weight)")] = 70.0,
+    low_g: Annotated[float, typer.Option(
+        "--low", help="g at the key top where the ramp down ends (under the up-weight)")] = 10.0,
+    rate: Annotated[float, typer.Option(help="ramp rate, g per second")] = 2.0,
+    threshold: Annotated[float, typer.Option(
+        help="mm of key dip that shows the key went (its start is found before it)")] = 0.25,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="the presses' run file (.h5); default <data_folder>/<time>-"
+                            "touch-ramps.h5")] = None,
+    force: Annotated[bool, typer.Option("--force", help="overwrite the --out file")] = False,
+    lockstep: Annotated[bool, typer.Option(
+        help="simulated rig only: step as fast as possible instead of in real time")] = False,
+    operator: _OperatorOpt = None,
+    records_dir: _RecordsOpt = None,
+    json_out: _JsonOpt = False,
+) -> None:
+    """Slow force ramps on the key: down-weight, up-weight, balance weight, friction."""
+    from rig.calibration.touch import Ramps
+    from rig.services import measure_touch as svc
+
+    if json_out:  # (the document alone on stdout)
+        from rig.inputs import config as rig_config
+
+        try:
+            cfg, _ = rig_config.resolve(rig)
+        except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+            raise _fail(exc) from None
+    else:
+        cfg = _rig_for_calibration(rig)
+    if cfg.backend != "sim":
+        typer.confirm("Is the arm on the key top, the key free, the drive ready?",
+                      default=False, abort=True)
+    try:
+        result, record, run_file = svc.measure_touch(
+            cfg, Ramps(from_g=from_g, to_g=to_g, low_g=low_g, rate_g_s=rate,
+                       threshold_mm=threshold), trials=trials, out=out, force=force,
+            operator=operator, folder=records_dir, lockstep=lockstep,
+            on_line=None if json_out else _say)
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
+    if json_out:
+        _emit_json({"schema": "rig.measure-touch/1", **svc.document(result, record, run_file)})
+        return
+    for line in svc.summary(result):
+        _say(line)
+    _say(f"run file {run_file}")
+    _say(f"wrote {record}")
