@@ -6,6 +6,7 @@ embed it; bad input is one line, exit 2, nothing written."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from rig.services import calibrate as cal_svc
 from rig.services import measure_touch as svc
 from rig.services import run as run_svc
 
+ROOT = Path(__file__).resolve().parents[1]
 MASSES = [0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0]
 # the presses of the test: from under the model's balance force at rest (36 g) to over it,
 # back to under its force at the pressed stop (29 g); 16.5 s of profile a trial
@@ -168,6 +170,7 @@ def test_the_record_is_written_and_later_runs_embed_it(measured, tmp_path: Path)
         result.figures["down_weight"]["mean_g"])
     assert rec["uncertainty"]["up_weight"] == {"spread_g": result.figures["up_weight"][
         "spread_g"], "k": 2.0}
+    assert 0 < rec["uncertainty"]["load_cell_zero_g"] < 1.0  # the load cell's zero (k = 2)
     assert len(rec["raw_points"]) == 3 and rec["run_file"] == str(run_file)
     assert runfile.read(run_file).status == "complete"
     # the newest touch record is embedded in the next run's metadata
@@ -182,4 +185,9 @@ def test_the_record_is_written_and_later_runs_embed_it(measured, tmp_path: Path)
     dw = result.figures["down_weight"]
     assert lines[0].split()[:6] == ["down_weight", f"{dw['mean_g']:.2f}", "g", "+-",
                                      f"{dw['spread_g']:.2f}", f"({dw['mean_n']:.4f}"]
-    assert json.loads(json.dumps(svc.document(result, record, run_file)))["record"] == str(record)
+    doc = json.loads(json.dumps(svc.document(result, record, run_file)))
+    assert doc["record"] == str(record)
+    jsonschema = pytest.importorskip("jsonschema")
+    text = (ROOT / "docs" / "json.md").read_text()
+    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
+    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.measure-touch/1"))

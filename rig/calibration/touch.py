@@ -170,6 +170,7 @@ class TouchMeasurement:
     ramps: Ramps
     trials: list[dict[str, Start]]
     figures: dict[str, dict[str, float]] = field(default_factory=dict)
+    load_cell_zero_g: float = math.nan  # k = 2: the zero of the load cell's record, in g
 
     def per_trial_g(self) -> dict[str, list[float]]:
         dw = [grams(tr["down"].force_n) for tr in self.trials]

@@ -64,7 +64,7 @@ def measure_touch(
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     if json_out:
-        _emit_json({"schema": "rig.measure-touch/1", **svc.document(result, record, run_file)})
+        _emit_json(svc.document(result, record, run_file))
         return
     for line in svc.summary(result):
         _say(line)

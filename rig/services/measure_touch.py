@@ -20,7 +20,7 @@ from typing import Any
 from rig.calibration import records
 from rig.calibration import touch as ct
 from rig.calibration.settings import operator_name, records_folder
-from rig.errors import InputError
+from rig.errors import InputError, RigError
 from rig.inputs.config import RigConfig
 from rig.recordings import runfile
 from rig.services import run as run_svc
@@ -51,20 +51,24 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
         raise InputError(f"calibration: the load cell has no calibration record in "
                          f"{records_folder(cfg)}: run `rig calibrate loadcell` first (the "
                          f"weights are read from its force)")
+    zero_g = ct.grams(abs(float(records.read(Path(lc.record_file))["uncertainty"]
+                                 ["offset_v_per_v"]) / lc.sensitivity))
     profile = ramps.profile(cfg.limits.max_force_n, cfg.limits.max_profile_s)
     rep = run_svc.run(profile, cfg, trials=trials, out=out, force=force, lockstep=lockstep,
                       on_line=on_line)
     if not rep.complete:
-        raise InputError(f"run: {rep.path}: {rep.status}; nothing recorded")
+        raise RigError(f"run: {rep.path}: {rep.status}; nothing recorded")
     run = runfile.read(rep.path)
     result = ct.analyse([tr.channels for tr in run.trials], ramps, count)
+    result.load_cell_zero_g = zero_g
     rec = records.build(
         "touch", cfg, identifier=cfg.channels.encoders[_key_encoder(cfg)].counter,
         operator=operator_name(cfg, operator), kind="slow force ramps at the key top",
         units=ct.UNITS, raw_points=result.raw_points(),
         fit={"sensitivity": None, "offset": None, **result.figures},
-        uncertainty={name: {"spread_g": f["spread_g"], "k": 2.0}
-                     for name, f in result.figures.items()},
+        uncertainty={**{name: {"spread_g": f["spread_g"], "k": 2.0}
+                        for name, f in result.figures.items()},
+                     "load_cell_zero_g": zero_g, "load_cell_record": lc.source},
         checks={"trials": trials, "per_trial_g": result.per_trial_g()},
         extra={"settings": ramps.__dict__ | {"key_encoder_count_m": count},
                "run_file": str(rep.path)})
@@ -90,12 +94,17 @@ def summary(result: ct.TouchMeasurement) -> list[str]:
                      f"({f['mean_n']:.4f} N)   {DOCS[name]}")
     n = len(result.trials)
     r = result.ramps
-    lines.append(f"{n} trials; +- is 2 x the trials' standard deviation; ramps {r.from_g:g} -> "
+    lines.append(f"{n} trials; +- is 2 x the trials' standard deviation (k = 2); the load "
+                 f"cell's zero adds +- {result.load_cell_zero_g:.2f} g to every weight (k = 2, "
+                 f"its record); ramps {r.from_g:g} -> "
                  f"{r.to_g:g} -> {r.low_g:g} g at {r.rate_g_s:g} g/s; the key goes at "
                  f"{r.threshold_mm:g} mm, its start is where it left its elastic trend")
     return lines
 
 
 def document(result: ct.TouchMeasurement, record: Path, run_file: Path) -> dict[str, Any]:
-    return {"figures": result.figures, "per_trial_g": result.per_trial_g(),
+    """`rig measure touch --json`'s document (schema rig.measure-touch/1, docs/json.md)."""
+    return {"schema": "rig.measure-touch/1", "figures": result.figures,
+            "per_trial_g": result.per_trial_g(),
+            "load_cell_zero_g": result.load_cell_zero_g,
             "record": str(record), "run_file": str(run_file)}

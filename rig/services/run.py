@@ -282,7 +282,8 @@ def learned_record(profile_path: Path, cfg: RigConfig) -> tuple[dict[str, Any], 
     return learned_records.find(cfg, prof, cal_records.embedded(cal_records.lookup(cfg), cfg))
 
 
-def run(profile_path: Path | profiles.Profile, cfg: RigConfig, *, trials: int = 1, out: Path | None = None,
+def run(profile_path: Path | profiles.Profile, cfg: RigConfig, *, trials: int = 1,
+        out: Path | None = None,
         lockstep: bool = False, controller: Controller | None = None,
         on_line: Callable[[str], None] | None = None,
         on_cycle: Callable[[CycleContext], None] | None = None,
