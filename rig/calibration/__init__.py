@@ -8,6 +8,8 @@
     motor       steps and ramps on a static surface -> force map, lag, dynamic model;
                 ``MotorCompensation.demand`` is what the torque loop calls
     encoders    slow key travel -> each encoder counts, its direction and resolution
+    touch       slow force ramps on the key -> down- and up-weight with their spread
+                (`rig measure touch`; a ``touch`` record that runs embed)
 
 Every procedure refuses bad data with a one-line ``ValueError`` naming the
 point or field, and writes nothing in that case.
