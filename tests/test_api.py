@@ -121,7 +121,7 @@ def test_json_schemas_in_the_docs_are_valid_schemas() -> None:
     schemas = _schemas()
     assert set(schemas) == {"rig.info/1", "rig.simulate/1", "rig.effects/1", "rig.fit/1",
                             "rig.compare/1", "rig.diagnose/1", "rig.import/1",
-                            "rig.touch/1"}
+                            "rig.touch/1", "rig.measure-touch/1"}
     for s in schemas.values():
         jsonschema.Draft202012Validator.check_schema(s)
     with pytest.raises(jsonschema.ValidationError):  # the schemas do reject a wrong document
