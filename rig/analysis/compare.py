@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from rig.analysis import measurement as ms
+from rig.analysis.events import BLOW_ORDER, order_flags  # noqa: F401 (BLOW_ORDER: here before)
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
 from rig.model.action import CHANNEL_UNITS, EVENT_ORDER, ActionModel, SimResult
@@ -61,13 +62,6 @@ EVENT_CHANNELS: dict[str, tuple[str, ...]] = {
 # (the model's tracking of them), never scored as a residual
 INPUT_CHANNELS: dict[str, tuple[str, ...]] = {"force": ("force",), "command": (),
                                               "motion": ("key_dip", "key_angle")}
-# the order of a blow: each pair (a, b) must have a no later than b when both are found
-BLOW_ORDER: tuple[tuple[str, str], ...] = (
-    ("key_starts", "toe_meets_button"), ("key_starts", "let_off"), ("key_starts", "strike"),
-    ("key_starts", "key_bottom"), ("toe_meets_button", "let_off"), ("let_off", "strike"),
-    ("strike", "string_release"), ("string_release", "check"), ("strike", "check"),
-    ("key_bottom", "key_release"),
-)
 # the event errors that matter to piano makers (name, event or None, units)
 KEY_EVENTS: tuple[tuple[str, str, str], ...] = (
     ("strike time", "strike", "ms"),
@@ -342,19 +336,6 @@ def measured_events(meas: Measurement, time: np.ndarray, measured: dict[str, np.
         if not math.isfinite(ev[name]) and name in meas.events:
             ev[name], src[name] = meas.events[name], "found in the run file"
     return ev, src
-
-
-def order_flags(events: dict[str, float], tolerance_s: float = 0.0) -> list[str]:
-    """The measured events that contradict the order of a blow (``BLOW_ORDER``: let-off
-    after the strike, a key release before the strike, ...), one line per pair out of
-    order by more than ``tolerance_s``."""
-    out = []
-    for a, b in BLOW_ORDER:
-        ta, tb = events.get(a, math.nan), events.get(b, math.nan)
-        if math.isfinite(ta) and math.isfinite(tb) and ta > tb + tolerance_s:
-            out.append(f"{a} at {ta * 1e3:.2f} ms is after {b} at {tb * 1e3:.2f} ms: the "
-                       f"order of a blow says otherwise; one of them is wrong")
-    return out
 
 
 def phases_from(events: dict[str, float], t_end: float) -> list[tuple[str, float, float]]:

@@ -132,7 +132,8 @@ def import_cmd(
         _emit_json({"schema": "rig.import/1", "out": str(out),
                     "files": [r.provenance() for r in res.recordings],
                     "segment_channel": res.segment_channel,
-                    "trials": [t.as_dict() for t in res.trials]})
+                    "trials": [t.as_dict() for t in res.trials],
+                    "warnings": res.warnings})
         return
     for r in res.recordings:
         clipped = ", ".join(f"{k} {v}" for k, v in r.clipped.items() if v)
@@ -149,6 +150,8 @@ def import_cmd(
         for t in res.trials:
             _plain(f"{t.trial:>5} {t.file[:24]:<24} {t.onset_s:>9.3f} {t.release_s:>9.3f} "
                    f"{t.duration_s:>8.3f} {t.peak * k:>10.4g} {t.presses:>7}")
+    for w in res.warnings:
+        _plain(f"warning: {w}")
     _plain(f"wrote {out}: {len(res.trials)} trial{'s' if len(res.trials) != 1 else ''}")
 
 

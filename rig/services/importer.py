@@ -82,7 +82,7 @@ class ImportResult:
     trials: list[TrialRow]
     segment_channel: str | None
     segment_units: str = ""
-    notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # events out of a blow's order
 
 
 def _sha256(path: Path) -> tuple[str, int]:
@@ -202,14 +202,17 @@ def import_files(files: Sequence[Path], map_path: Path, out: Path, *, force: boo
                              s.duration_s if s else float(rec.time[-1] - rec.time[0]),
                              s.peak if s else float("nan"), s.peak_s if s else float("nan"),
                              s.presses if s else 0, b - a))
-    _write(out, m, recs, pieces, rows, stored_units, split, force)
+    warnings = _write(out, m, recs, pieces, rows, stored_units, split, force)
     return ImportResult(out, recs, rows, spec.channel if spec else None,
-                        stored_units.get(spec.channel, "") if spec else "")
+                        stored_units.get(spec.channel, "") if spec else "", warnings)
 
 
 def _write(out: Path, m: mapfile.ImportMap, recs: list[Recording],
            pieces: list[tuple[Recording, int, int, sg.Stroke | None]], rows: list[TrialRow],
-           units: dict[str, str], split: bool, force: bool) -> None:
+           units: dict[str, str], split: bool, force: bool) -> list[str]:
+    """Write the run file; returns the warnings (events found out of the order of a
+    blow, per trial: stored as the trial's ``event_order_flags`` too)."""
+    warnings: list[str] = []
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
@@ -247,6 +250,10 @@ def _write(out: Path, m: mapfile.ImportMap, recs: list[Recording],
                     ds.attrs["clipped_samples"] = rec.clipped[n]
                 found = events.found(data["time"], data, out_of_range={
                     n: v[a:b] for n, v in rec.out_of_range.items()})
+                flags = events.order_flags({n: e.time for n, e in found.items()},
+                                           0.5 * float(np.median(np.diff(data["time"]))))
+                warnings += [f"trial {k}: events out of the order of a blow: {f}"
+                             for f in flags]
                 if found:
                     tr.write_events({n: e.time for n, e in found.items()}, EVENT_DOCS,
                                     source=events.SOURCE,
@@ -256,8 +263,11 @@ def _write(out: Path, m: mapfile.ImportMap, recs: list[Recording],
                 tr.set_attrs(status="complete", t0=t0, source_file=rec.path.name,
                              onset_s=row.onset_s, release_s=row.release_s,
                              presses=row.presses)
+                if flags:
+                    tr.set_attrs(event_order_flags=flags)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     refuse_existing(out, force, "out")  # appeared while importing
     os.replace(tmp, out)
+    return warnings
