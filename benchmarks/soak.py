@@ -138,11 +138,13 @@ def main() -> int:
     reader = threading.Thread(target=lambda: rest.extend(ln.rstrip() for ln in proc.stdout),
                               daemon=True)  # type: ignore[union-attr]
     reader.start()
+    series: list[tuple[float, dict[str, float | None]]] = []  # (s, VmRSS per process)
     while proc.poll() is None:
         time.sleep(args.sample_s)
         now = {(r, f): _rss_mb(p, f) for r, p in roles.items() for f in fields}
         if all(v is not None for v in now.values()):
             last = now
+            series.append((time.monotonic() - t0, {r: now[(r, "VmRSS")] for r in roles}))
     reader.join(timeout=5)
     lines += rest
     print(f"rig run exit code {proc.returncode} after {time.monotonic() - t0:.0f} s of "
@@ -159,6 +161,13 @@ def main() -> int:
                     parts.append(f"{f} {fa:.1f} -> {fb:.1f} ({fb - fa:+.1f} MB)")
             print(f"  {r:12s} (pid {p}): {a:7.1f} -> {b:7.1f}  ({b - a:+.1f} MB, "
                   f"{(b - a) / a * 100:+.1f} %); {'; '.join(parts)}")
+
+    if len(series) >= 5:  # growth still going on, or done early (a warm-up)?
+        print("RSS (MB) through the run, at 0/25/50/75/100 % of the sampling:")
+        for q in (0, 0.25, 0.5, 0.75, 1.0):
+            ts, rss = series[min(len(series) - 1, int(q * (len(series) - 1)))]
+            print(f"  {ts:6.0f} s  " + "  ".join(f"{r} {v:.1f}" for r, v in rss.items()
+                                                 if v is not None))
 
     with h5py.File(run_file, "r") as f:
         status = str(f.attrs["status"])

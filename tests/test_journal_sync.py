@@ -46,7 +46,9 @@ def test_every_flush_syncs_the_journal_after_its_records(tmp_path: Path,
     path = tmp_path / "r.h5"
     writer = runfile.RunWriter(path, "measured", {"note": "t"}, crash_safe=True)
     jw = journal.JournalWriter.create(path)
-    assert calls == [(jw.fd, len(journal.MAGIC))]          # the new journal's head
+    # the new journal's head, then the close record's reserve beside it
+    assert calls[0] == (jw.fd, len(journal.MAGIC)) and len(calls) == 2
+    assert calls[1][0] != jw.fd and calls[1][1] == journal.END_RESERVE_BYTES
     acq = Acquisition(cfg, cal_records.lookup(cfg), writer, _NoMessages(), None, jw)
     col = calrecords.column(cfg, calrecords.SAMPLE)
     n = 0
@@ -58,7 +60,7 @@ def test_every_flush_syncs_the_journal_after_its_records(tmp_path: Path,
         acq.take(rows)
         acq.write_pending()
         # one sync per flush, after its records: the journal's size then is its size now
-        assert len(calls) == flush + 2
+        assert len(calls) == flush + 3
         assert calls[-1] == (jw.fd, os.fstat(jw.fd).st_size)
         assert journal.scan(journal.journal_path(path)).good_bytes == calls[-1][1]
     acq.finish("complete", {}, {})

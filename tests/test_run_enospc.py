@@ -27,7 +27,10 @@ from rig.recordings import runfile
 from rig.sim_backend.rig_process import DRIVE_LOG_ENV, read_drive_log
 
 SHORT = "name: p\nsegments:\n  - {hold: 0.05}\n  - {ramp: 0.2, to: 10}\n  - {ramp: 0.2, to: 0}\n"
-RIG = {"name": "enospc", "backend": "sim", "drive": {"port": "sim", "poll_period_s": 0.01},
+# (a drive answer timeout of 5 s: on a loaded machine the simulated drive's thread answered
+# the enable's status query later than the default 0.5 s, and the run never started)
+RIG = {"name": "enospc", "backend": "sim",
+       "drive": {"port": "sim", "poll_period_s": 0.01, "timeout_s": 5.0},
        "sim": {"realtime": True, "effects": []}, "loop": {"rest_s": 0.05},
        "channels": {"strain_gauge": {"enabled": False}}, "acquisition": {"buffer_s": 10.0}}
 FULL = re.compile(r"at sample (\d+); the (\d+) samples flushed before it are kept")
@@ -131,6 +134,46 @@ def test_rig_recover_says_one_line_and_refuses_bad_input(tmp_path: Path) -> None
     run2 = _small_journal(tmp_path / "b")
     kept = runner.invoke(app, ["recover", str(run2), "--out", str(mine)])
     assert kept.exit_code == 2 and "--force" in kept.output and mine.read_bytes() == b"keep"
+
+
+def test_the_final_status_survives_a_disk_with_no_byte_left(tmpfs) -> None:
+    """A disk that fills at once can leave no room to append the run's final status to its
+    journal (CI, once: the recovered file said "the run's writer died" instead of "disk
+    full"): the status goes into the reserve written beside the journal at its start, and
+    the recovery takes it from there. Both files go once the run file is rebuilt."""
+    small = tmpfs("size=1m")
+    run = small / "run.h5"
+    jw = journal.JournalWriter.create(run)
+    assert journal.end_path(run).stat().st_size == journal.END_RESERVE_BYTES
+    jw.begin(run, "measured", {}, {})
+    data = {"time": np.arange(100) / 2000.0, "sample": np.arange(100.0)}
+    jw.append(0, "channels", data, {"time": "s", "sample": "1"}, {})
+    jw.sync()
+    # another program takes every byte left
+    with open(small / "filler", "wb", buffering=0) as f, pytest.raises(OSError):
+        while True:
+            f.write(b"\0" * 4096)
+    with pytest.raises(OSError):  # the journal cannot take another page
+        for _ in range(64):
+            jw.append(0, "channels", data, {"time": "s", "sample": "1"}, {})
+    assert jw.broken is not None
+    status = "aborted: disk full at sample 100; the 100 samples flushed before it are kept"
+    jw.close_record(status)  # no OSError: the reserve took it
+    jw.close()
+    (small / "filler").unlink()
+    rec = journal.recover(run)
+    assert rec.status == status and runfile.read(run).status == status
+    assert not journal.journal_path(run).exists() and not journal.end_path(run).exists()
+
+
+def test_a_status_neither_file_takes_is_an_os_error(tmp_path: Path) -> None:
+    run = tmp_path / "run.h5"
+    jw = journal.JournalWriter.create(run)
+    jw.broken = OSError(28, "No space left on device")
+    journal.end_path(run).unlink()  # (no reserve: say so)
+    with pytest.raises(OSError):
+        jw.close_record("aborted: disk full")
+    jw.close()
 
 
 # ---- ENOSPC through the writer's seam at random moments of a 3-trial run ----

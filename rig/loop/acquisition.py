@@ -372,7 +372,7 @@ def _acquire(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any
         if _abort(acq, writer, f"aborted: {why}"):
             # nobody else will finish the file, and it is whole: its journal is not needed
             with contextlib.suppress(OSError):
-                journal.journal_path(path).unlink()
+                journal.remove(path)
     except Exception as exc:  # a full disk, a card fault, anything: the reason, exit 1
         code = 1
         full = isinstance(exc, DiskFull) or journal.is_disk_full(exc)

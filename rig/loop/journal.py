@@ -69,6 +69,28 @@ def journal_path(path: str | Path) -> Path:
     return p.with_name(p.name + ".journal")
 
 
+# The close record's reserve: a disk that fills at once leaves no room to append the run's
+# final status ("aborted: disk full ...") to its journal, and whether the last page had room
+# was luck (CI: "recovered from the journal (the run's writer died)" instead of the disk-full
+# status). So the journal's start also writes this many bytes beside it (``end_path``), and
+# a close record the journal cannot take is written over them: overwriting bytes the file
+# already holds needs no new space.
+END_RESERVE_BYTES = 4096
+
+
+def end_path(path: str | Path) -> Path:
+    """The close record's reserve beside run file ``path`` (``RUN.h5.journal.end``)."""
+    p = journal_path(path)
+    return p.with_name(p.name + ".end")
+
+
+def remove(path: str | Path) -> None:
+    """Remove run file ``path``'s journal and its reserve (the run file is whole)."""
+    for p in (journal_path(path), end_path(path)):
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+
+
 class _Faults:
     """The test seam (module doc): counts writes in this process, fails the chosen one."""
 
@@ -178,6 +200,13 @@ class JournalWriter:
         os.ftruncate(fd, 0)
         self._write(MAGIC, "journal head")
         self.sync()
+        efd = os.open(end_path(run_path), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:  # the reserve: the journal's head, then zeros (no record until it is used)
+            os.write(efd, MAGIC + bytes(END_RESERVE_BYTES - len(MAGIC)))
+            if durable:
+                os.fdatasync(efd)
+        finally:
+            os.close(efd)
         if durable:   # the new file's name in its folder survives a power failure too
             dfd = os.open(path.parent, os.O_RDONLY)
             try:
@@ -255,7 +284,32 @@ class JournalWriter:
                     "journal metadata")
 
     def close_record(self, status: str) -> None:
-        self._write(_encode("close", {"status": status}, []), "journal close")
+        """The run's final status: appended to the journal, or, when the journal cannot take
+        it (a full disk), written over the reserve beside it (``end_path``); OSError only
+        when neither took it."""
+        try:
+            self._write(_encode("close", {"status": status}, []), "journal close")
+        except OSError:
+            if not self._close_in_reserve(status):
+                raise
+
+    def _close_in_reserve(self, status: str) -> bool:
+        rec = MAGIC + _encode("close", {"status": status}, [])
+        if len(rec) > END_RESERVE_BYTES:  # (a status is one line; keep its start)
+            rec = MAGIC + _encode("close", {"status": status[:END_RESERVE_BYTES // 2]}, [])
+        try:
+            fd = os.open(self.path.with_name(self.path.name + ".end"), os.O_WRONLY)
+        except OSError:
+            return False
+        try:
+            os.pwrite(fd, rec, 0)
+            if self.durable:
+                os.fdatasync(fd)
+        except OSError:
+            return False
+        finally:
+            os.close(fd)
+        return True
 
     def close(self) -> None:
         with contextlib.suppress(OSError):
@@ -360,12 +414,18 @@ def _recover_locked(run_path: Path, jpath: Path, target: Path,
     if not sc.records or sc.records[0][0].get("k") != "begin":
         raise InputError(f"{jpath}: holds no whole first record (the run wrote nothing "
                          f"recoverable)")
+    end = jpath.with_name(jpath.name + ".end")
+    if not any(doc["k"] == "close" for doc, _ in sc.records) and end.is_file():
+        # the final status the full journal could not take, in its reserve
+        sc.records += [r for r in scan(end).records if r[0].get("k") == "close"][:1]
     tmp = target.with_name(f".{target.name}.recovering")
     status, samples, trials = _replay(sc, tmp)
     os.replace(tmp, target)
     if not keep_journal:
         with contextlib.suppress(OSError):
             jpath.unlink()
+        with contextlib.suppress(OSError):
+            end.unlink()
     return Recovered(target, status, samples, trials, sc.torn)
 
 

@@ -46,8 +46,10 @@ class LoopRecords:
         self.sent = [0] * trials      # rows of trial k sent
         self.made = [0] * trials      # rows of trial k recorded
         self.keep = max(keep, 1)
-        self.lateness = np.zeros(total + 1)
-        self.missed = np.zeros(total + 1)
+        # 8 bytes a cycle (float32 lateness to well under a microsecond, uint32 missed
+        # ticks): 1.4 MB for 200 forte trials, touched as the run goes on
+        self.lateness = np.zeros(total + 1, np.float32)
+        self.missed = np.zeros(total + 1, np.uint32)
         self.n = 0
 
     def add(self, row: list[float]) -> None:
@@ -150,7 +152,7 @@ def finish(proc: Any, ctrl: Any, status_q: Any, rows: LoopRecords, trials: int, 
         sc = journal.scan(jpath)
         if sc.records and sc.records[0][0].get("k") == "begin":
             return _finish_from_journal(path, rows, trials, final, meta, tattrs, errors)
-        jpath.unlink()  # (it failed before its first record: nothing in it)
+        journal.remove(path)  # (it failed before its first record: nothing in it)
     try:  # (the acquisition failed before it began the journal: the file holds no samples)
         _finish_in_place(path, rows, trials, final, meta, tattrs, errors)
     except Exception as exc:

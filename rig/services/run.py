@@ -522,9 +522,9 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
         if monitor is not None:
             monitor.stop()
             if monitor.link_errors and monitor.fault is None:
-                (trace or say)(f"WARNING: {monitor.link_errors} drive status poll(s) failed on "
-                               f"the link and the next one answered; check the drive's cable "
-                               f"if this repeats")
+                say(f"note: {monitor.link_errors} drive status poll(s) failed on "
+                    f"the link and the next one answered; check the drive's cable "
+                    f"if this repeats")
 
     status = "complete" if reason is None else f"aborted: {reason}"
     stats = lateness_stats(rows.lateness[:rows.n], rows.missed[:rows.n],
@@ -566,7 +566,7 @@ def _run(profile: profiles.Profile, cfg: RigConfig, trials: int, path: Path, loc
             return RunReport(path, left, last_tick + 1, stats, None, {})
     # the run file is whole: its journal is no longer needed
     with contextlib.suppress(OSError):
-        journal.journal_path(path).unlink()
+        journal.remove(path)
     return RunReport(path, final, last_tick + 1, stats, samples, rep)
 
 
