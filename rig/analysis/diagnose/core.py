@@ -49,7 +49,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
              single: bool = False, max_effects: int = 3, alpha: float = 0.05,
              z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
-             final_nfev: int = 40, executor: Executor | None = None,
+             final_nfev: int = 40, weights: str = "noise", executor: Executor | None = None,
              progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses."""
@@ -59,6 +59,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         raise InputError("measurements: expected at least one trial")
     if held_out_test not in ("noise", "hac"):
         raise InputError(f"held_out_test: expected 'noise' or 'hac', got {held_out_test!r}")
+    if weights not in ("noise", "none"):
+        raise InputError(f"weights: expected 'noise' or 'none', got {weights!r}")
     wall0 = _time.perf_counter()
     notes: list[str] = []
     windows: list[float | None] | None = None
@@ -71,6 +73,9 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             + " (--duration S for the first S s of every trial)")
     data = ft.Data.build(measurements, input, duration, channels, align_s=align_s,
                          windows=windows)
+    base = ft.rebuild(base, rate=measurements[0].rate)
+    if weights == "noise":  # the base model's noise model weighs every sample (fit, tests)
+        data = replace(data, weights=ft.noise_weights(base, data))
     train_m, test_m = ft.split_masks(data)
     train, test = data.subset(train_m), data.subset(test_m)
     held = ft.held_out_trials(data)
@@ -80,7 +85,6 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              else f"{n_meas} trials of {len(set(ft.blows(measurements)))} blows: fit on "
              f"trials {[i for i in range(n_meas) if i not in held]}, score on trials {held} "
              "(other blows)")
-    base = ft.rebuild(base, rate=measurements[0].rate)
     comp = cp.compare(measurements[0], [(label, base)], input, data.window(0), channels)
     sigs = sg.signatures(comp, comp.models[0], align_s)
     base_preds = test.simulate(base)
