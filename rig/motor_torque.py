@@ -1,5 +1,9 @@
 """Force demand -> drive volts: scaling, safety limits, the lag-compensating advance;
-the drive's process model (thesis Eq. D.1) discretised for a held demand.
+the drive's process model (thesis Eq. D.1), the one definition that the learner's planning
+(rig.control.plant) and the simulated drive (rig.sim_backend.drive_model) share: its
+coefficients (``ProcessModel``, ``thesis_process`` in the thesis's time unit
+``THESIS_TIME_UNIT_S``), its rising- and falling-demand models (``RiseFall``,
+``thesis_models``), discretised for a held demand (``process_discrete``).
 
 The motor presses the key top through a 0.1 m arm, so force and torque are
 interchangeable (thesis Section 2.8): torque = force * arm; the drive turns
@@ -8,8 +12,12 @@ volts into current, the motor current into torque.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
@@ -84,18 +92,110 @@ def feedforward(profile: Profile, t: float, advance_s: float) -> float:
     return float(profile.at(t + advance_s)) if t + advance_s >= 0 else 0.0
 
 
+# The thesis's process models (Appendix D), by their name under the parameters' actuator:
+# the single model (Eq. D.1 for every demand) and the rising- and falling-demand models
+SINGLE_MODEL = "process_model_all"
+RISING_MODEL = "process_model_increasing"
+FALLING_MODEL = "process_model_decreasing"
+
+
 def process_coefficients(Tw: float, zeta: float, Tp3: float) -> tuple[float, float, float]:
     """a3, a2, a1 of Eq. D.1, a3 y''' + a2 y'' + a1 y' + y = K u (Tw, Tp3 in s)."""
     return (Tw * Tw * Tp3, Tw * Tw + 2 * zeta * Tw * Tp3, 2 * zeta * Tw + Tp3)
 
 
-def thesis_process(params: Parameters, name: str = "process_model_all",
+def _in_seconds(m: Mapping[str, float], time_unit_s: float) -> tuple[float, float, float, float]:
+    return (float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
+            float(m["Tp3"]) * time_unit_s)
+
+
+def thesis_process(params: Parameters, name: str = SINGLE_MODEL,
                    time_unit_s: float = THESIS_TIME_UNIT_S) -> tuple[float, float, float, float]:
     """(K, Tw, zeta, Tp3) of Eq. D.1, Tw and Tp3 in s, from the parameters'
     ``actuator.<name>`` (Tw, Tp3 in ``time_unit_s``, the thesis's 2 ms loop periods)."""
-    m = params.get(f"actuator.{name}")
-    return (float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
-            float(m["Tp3"]) * time_unit_s)
+    return _in_seconds(params.get(f"actuator.{name}"), time_unit_s)
+
+
+@dataclass(frozen=True)
+class ProcessModel:
+    """Eq. D.1: K (N/N), Tw (s), zeta, Tp3 (s)."""
+
+    K: float
+    Tw: float
+    zeta: float
+    Tp3: float
+
+    def __post_init__(self) -> None:
+        if not (self.K > 0 and self.Tw > 0 and self.zeta > 0 and self.Tp3 > 0):
+            raise InputError(f"process model: expected K, Tw, zeta, Tp3 > 0, got {self}")
+
+    def discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(A, B) for the state [y, y', y''] and a demand held for dt (zero-order hold)."""
+        return _discrete(self, dt)
+
+    def exact_discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``discrete`` computed (matrix exponential), not cached."""
+        return process_discrete(self.K, self.Tw, self.zeta, self.Tp3, dt)
+
+    @classmethod
+    def from_thesis(cls, m: Mapping[str, float], time_unit_s: float = THESIS_TIME_UNIT_S
+                    ) -> ProcessModel:
+        """From the thesis's K, Tw, zeta, Tp3 (Tw, Tp3 in ``time_unit_s``)."""
+        return cls(*_in_seconds(m, time_unit_s))
+
+
+@functools.lru_cache(maxsize=64)
+def _discrete(model: ProcessModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    A, B = model.exact_discrete(dt)
+    A.setflags(write=False)
+    B.setflags(write=False)
+    return A, B
+
+
+@dataclass(frozen=True)
+class RiseFall:
+    """A rising- and a falling-demand process model (the same one for a linear drive).
+    A demand is played with the rising model after it rose, with the falling model after
+    it fell, else as before (the state, force and its derivatives, carries over)."""
+
+    name: str
+    rise: ProcessModel
+    fall: ProcessModel
+
+    def scaled(self, gain: float) -> Self:
+        """The same drive with both models' K multiplied by ``gain``."""
+        if gain == 1.0:
+            return self
+        rise = dataclasses.replace(self.rise, K=self.rise.K * gain)
+        fall = rise if self.fall == self.rise else dataclasses.replace(self.fall,
+                                                                      K=self.fall.K * gain)
+        return dataclasses.replace(self, rise=rise, fall=fall)
+
+    def modes(self, d: np.ndarray) -> np.ndarray:
+        """True where cycle j's demand is played with the rising model."""
+        return self._modes(np.asarray(d, float))
+
+    def _modes(self, d: np.ndarray) -> np.ndarray:
+        rising = np.empty(d.size, bool)
+        state, last = True, 0.0
+        for j, x in enumerate(d):
+            if x > last:
+                state = True
+            elif x < last:
+                state = False
+            rising[j], last = state, float(x)
+        return rising
+
+
+def thesis_models(params: Parameters | None = None,
+                  time_unit_s: float = THESIS_TIME_UNIT_S) -> tuple[RiseFall, RiseFall]:
+    """The thesis's single model and its rising/falling pair (Appendix D)."""
+    p = params or Parameters.default()
+    single = ProcessModel.from_thesis(p.get(f"actuator.{SINGLE_MODEL}"), time_unit_s)
+    return (RiseFall("thesis single model", single, single),
+            RiseFall("thesis rise/fall models",
+                     ProcessModel.from_thesis(p.get(f"actuator.{RISING_MODEL}"), time_unit_s),
+                     ProcessModel.from_thesis(p.get(f"actuator.{FALLING_MODEL}"), time_unit_s)))
 
 
 def zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

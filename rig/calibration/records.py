@@ -16,9 +16,7 @@ on another backend (or another simulated seed), is not valid and is skipped.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
-import math
 import os
 import warnings
 from pathlib import Path
@@ -27,6 +25,7 @@ from typing import Any
 from rig.calibration.settings import records_folder, settings_for
 from rig.errors import InputError
 from rig.inputs.config import RigConfig
+from rig.recordings.identity import content_hash, json_ready, rig_identity
 from rig.sensors.table import CalRecord, nominal
 from rig.version import __version__
 
@@ -46,35 +45,6 @@ class CalibrationAgeWarning(UserWarning):
 
 class InvalidRecordWarning(UserWarning):
     """An unreadable or altered record (its content hash does not match) was skipped."""
-
-
-def json_ready(obj: Any) -> Any:
-    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
-    if isinstance(obj, dict):
-        return {str(k): json_ready(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [json_ready(v) for v in obj]
-    if hasattr(obj, "tolist"):
-        return json_ready(obj.tolist())
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def content_hash(record: dict[str, Any]) -> str:
-    """sha256 of the canonical JSON of the record without its hash."""
-    body = {k: v for k, v in record.items() if k != "content_hash"}
-    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
-
-
-def rig_identity(cfg: RigConfig) -> dict[str, Any]:
-    ident: dict[str, Any] = {"name": cfg.name, "backend": cfg.backend}
-    if cfg.backend == "sim":
-        ident["sim_seed"] = cfg.sim.seed
-    return ident
 
 
 def build(sensor: str, cfg: RigConfig, *, identifier: str, operator: str, kind: str,

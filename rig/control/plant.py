@@ -29,89 +29,22 @@ G's columns zeroed where the limiter clipped the demand);
 
 from __future__ import annotations
 
-import dataclasses
-import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from rig import motor_torque
 from rig.errors import InputError
 from rig.inputs.params import Parameters
-from rig.motor_torque import process_discrete
-
-# the thesis's time unit of Tw and Tp3 (2 ms loop periods; rig.sim_backend.drive_model)
-THESIS_TIME_UNIT_S = 0.002
+from rig.motor_torque import ProcessModel, RiseFall
 
 
 @dataclass(frozen=True)
-class ProcessModel:
-    """Eq. D.1: K (N/N), Tw (s), zeta, Tp3 (s)."""
-
-    K: float
-    Tw: float
-    zeta: float
-    Tp3: float
-
-    def __post_init__(self) -> None:
-        if not (self.K > 0 and self.Tw > 0 and self.zeta > 0 and self.Tp3 > 0):
-            raise InputError(f"process model: expected K, Tw, zeta, Tp3 > 0, got {self}")
-
-    def discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(A, B) for the state [y, y', y''] and a demand held for dt (zero-order hold)."""
-        return _discrete(self, dt)
-
-    def exact_discrete(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """``discrete`` computed (matrix exponential), not cached."""
-        return process_discrete(self.K, self.Tw, self.zeta, self.Tp3, dt)
-
-    @classmethod
-    def from_thesis(cls, m: Mapping[str, float], time_unit_s: float = THESIS_TIME_UNIT_S
-                    ) -> ProcessModel:
-        return cls(float(m["K"]), float(m["Tw"]) * time_unit_s, float(m["zeta"]),
-                   float(m["Tp3"]) * time_unit_s)
-
-
-@functools.lru_cache(maxsize=64)
-def _discrete(model: ProcessModel, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    A, B = model.exact_discrete(dt)
-    A.setflags(write=False)
-    B.setflags(write=False)
-    return A, B
-
-
-@dataclass(frozen=True)
-class DriveModel:
-    """A rising- and a falling-demand process model (the same one for a linear drive)."""
-
-    name: str
-    rise: ProcessModel
-    fall: ProcessModel
-
-    def scaled(self, gain: float) -> DriveModel:
-        """The same drive with both models' K multiplied by ``gain``."""
-        if gain == 1.0:
-            return self
-        rise = dataclasses.replace(self.rise, K=self.rise.K * gain)
-        fall = rise if self.fall == self.rise else dataclasses.replace(self.fall,
-                                                                      K=self.fall.K * gain)
-        return DriveModel(self.name, rise, fall)
-
-    def modes(self, d: np.ndarray) -> np.ndarray:
-        """True where cycle j's demand is played with the rising model."""
-        return self._modes(np.asarray(d, float))
-
-    def _modes(self, d: np.ndarray) -> np.ndarray:
-        rising = np.empty(d.size, bool)
-        state, last = True, 0.0
-        for j, x in enumerate(d):
-            if x > last:
-                state = True
-            elif x < last:
-                state = False
-            rising[j], last = state, float(x)
-        return rising
+class DriveModel(RiseFall):
+    """The drive's rising/falling process models (rig.motor_torque.RiseFall, Eq. D.1) as
+    the learner plans with them: simulated on the trial grid, lifted, linearised."""
 
     def simulate(self, d: np.ndarray, control_hz: float) -> np.ndarray:
         """y_j: the force read at cycle j, before demand d_j is written (N); the drive
@@ -180,13 +113,11 @@ class DriveModel:
 
 
 def thesis_models(params: Parameters | None = None) -> tuple[DriveModel, DriveModel]:
-    """The thesis's single model and its rising/falling pair (Appendix D)."""
-    p = params or Parameters.default()
-    single = ProcessModel.from_thesis(p.get("actuator.process_model_all"))
-    return (DriveModel("thesis single model", single, single),
-            DriveModel("thesis rise/fall models",
-                       ProcessModel.from_thesis(p.get("actuator.process_model_increasing")),
-                       ProcessModel.from_thesis(p.get("actuator.process_model_decreasing"))))
+    """The thesis's single model and its rising/falling pair (Appendix D;
+    rig.motor_torque.thesis_models)."""
+    single, risefall = motor_torque.thesis_models(params)
+    return (DriveModel(single.name, single.rise, single.fall),
+            DriveModel(risefall.name, risefall.rise, risefall.fall))
 
 
 def from_motor_record(rec: Mapping[str, object]) -> DriveModel | None:

@@ -1,7 +1,8 @@
 """Learned-feedforward records: what `rig run PROFILE --learn N` learned, reused by later runs.
 
 One JSON file per learning session in ``<data_folder>/learned/``, content-hashed like
-the calibration records (rig.calibration.records): format, created (UTC), the profile
+the calibration records (rig.calibration.records; the shared parts in
+rig.recordings.identity): format, created (UTC), the profile
 (name, source, ``content_hash`` of its time and force points), the rig (backend, name,
 simulated seed), the calibration records in use (content hashes; the motor record's
 matters: its map and lag shaped the first trial and the learning gain), the loop rate,
@@ -27,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from rig.calibration.records import content_hash, json_ready, rig_identity
 from rig.errors import InputError
 from rig.inputs import profiles
 from rig.inputs.config import RigConfig
+from rig.recordings.identity import content_hash, json_ready, rig_identity
 
 FORMAT = "rig-learned-feedforward"
 FORMAT_VERSION = 1

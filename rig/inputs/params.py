@@ -26,8 +26,8 @@ import yaml
 from rig.errors import InputError
 
 # The thesis's time unit of the drive model's Tw and Tp3 (Eq. D.1, Appendix D: the 500 Hz
-# loop's 2 ms periods): the simulated drive's (rig.motor_torque.thesis_process) and the rig
-# config's default (sim.process_time_unit_s); rig.control.plant still keeps a copy.
+# loop's 2 ms periods): Eq. D.1's one definition (rig.motor_torque: the learner's and the
+# simulated drive's) and the rig config's default (sim.process_time_unit_s).
 THESIS_TIME_UNIT_S = 0.002
 
 _DATA = resources.files("rig") / "data"

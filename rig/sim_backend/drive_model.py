@@ -59,7 +59,15 @@ import numpy as np
 
 from rig.errors import InputError
 from rig.inputs.params import THESIS_TIME_UNIT_S, Parameters
-from rig.motor_torque import process_coefficients, process_discrete, thesis_process, zoh
+from rig.motor_torque import (
+    FALLING_MODEL,
+    RISING_MODEL,
+    SINGLE_MODEL,
+    process_coefficients,
+    process_discrete,
+    thesis_process,
+    zoh,
+)
 
 VARIANTS = ("single", "asymmetric", "step_size")
 STEP_SIZE_REFERENCE_N = 10.0   # the step size of Fig. D.1 that Eq. D.1 was identified on
@@ -91,11 +99,11 @@ class DriveModel:
 
         self.variant = variant
         self.dt = dt
-        single = coeffs("process_model_all")
+        single = coeffs(SINGLE_MODEL)
         self.gain = single[0]
         if variant == "asymmetric":
-            self._rise = process_discrete(*coeffs("process_model_increasing"), dt)
-            self._fall = process_discrete(*coeffs("process_model_decreasing"), dt)
+            self._rise = process_discrete(*coeffs(RISING_MODEL), dt)
+            self._fall = process_discrete(*coeffs(FALLING_MODEL), dt)
         else:
             self._rise = self._fall = process_discrete(*single, dt)
         if variant == "step_size":
