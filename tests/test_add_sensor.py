@@ -1,8 +1,9 @@
 """docs/architecture.md's "Add a sensor", followed literally (issue 14).
 
-The guide's example (a thermometer) is added the way the guide says, to the sensor table of
-a scratch copy of the package (rig/sensors/table.py copied and edited, every other file
-linked, so the compiled model's cache is shared), and `rig run` presses the key on the
+The guide's example (a thermometer) is added the way the guide says, to the sensor table and
+the two backends' tables of a scratch copy of the package (rig/sensors/table.py,
+rig/ni_backend/channels.py and rig/sim_backend/sensors.py copied and edited, every other
+file linked, so the compiled model's cache is shared), and `rig run` presses the key on the
 simulated rig through the real processes (the acquisition process imports the copy too).
 The run file must hold the new channel, raw and calibrated, with its units and
 descriptions; so must the NI reader's rows. Any place that still wrote the card rows'
@@ -25,6 +26,7 @@ import yaml
 from ni_fake import FakeInterpreter  # nidaqmx's own classes, the DAQmx calls recorded
 
 from rig.inputs import config
+from rig.ni_backend import channels as ni_channels
 from rig.ni_backend.daq import NiReader
 from rig.recordings import runfile
 from rig.sensors import table as sensor_table
@@ -35,18 +37,23 @@ FORTE = ROOT / "profiles" / "forte.yaml"
 TABLE_LINE = re.compile(r"^SENSOR_TABLE: .*$", re.M)
 
 
-def guide() -> tuple[str, str]:
-    """The "Add a sensor" section and its one Python block."""
+# the files the guide edits, each with the table its block adds to (after the sensor table)
+BACKENDS = {"rig/ni_backend/channels.py": "NI_CHANNELS", "rig/sim_backend/sensors.py": "SIM_CHAINS"}
+
+
+def guide() -> tuple[str, list[str]]:
+    """The "Add a sensor" section and its Python blocks."""
     section = GUIDE.read_text().split("\n## Add a sensor\n", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)
-    assert len(blocks) == 1, "the guide shows one Python block: the new sensor's entry"
-    return section, blocks[0]
+    assert len(blocks) == 3, ("the guide shows three Python blocks: the new sensor's entry, "
+                              "its NI channel and its simulated chain")
+    return section, blocks
 
 
 def edited_table_source() -> str:
     """rig/sensors/table.py with the guide's block: its function above the table, the table's
     line as the guide shows it."""
-    section, block = guide()
+    section, (block, *_) = guide()
     assert "rig/sensors/table.py" in section and "SENSOR_TABLE" in section
     src = (ROOT / "rig" / "sensors" / "table.py").read_text()
     old, new = TABLE_LINE.search(src), TABLE_LINE.search(block)
@@ -59,27 +66,43 @@ def edited_table_source() -> str:
     return src[:old.start()] + block[:new.start()] + new.group(0) + src[old.end():]
 
 
+def edited_backend_sources() -> dict[str, str]:
+    """The backends' files with the guide's blocks: each adds the new sensor's entry to its
+    file's table, appended to the file."""
+    section, (_, *blocks) = guide()
+    out = {}
+    for (path, table), block in zip(BACKENDS.items(), blocks, strict=True):
+        assert path in section and table in section
+        assert block.startswith(f"{table}["), (path, block)
+        out[path] = (ROOT / path).read_text() + "\n\n" + block
+    return out
+
+
 @pytest.fixture(scope="module")
 def shadow(tmp_path_factory) -> Path:
-    """A package folder whose rig is this one plus the guide's edit."""
+    """A package folder whose rig is this one plus the guide's edits."""
     root = tmp_path_factory.mktemp("shadow")
-    pkg = root / "rig"
-    pkg.mkdir()
-    for entry in (ROOT / "rig").iterdir():
-        if entry.name not in ("sensors", "__pycache__"):
-            (pkg / entry.name).symlink_to(entry)
-    (pkg / "sensors").mkdir()
-    for entry in (ROOT / "rig" / "sensors").iterdir():
-        if entry.name not in ("table.py", "__pycache__"):
-            (pkg / "sensors" / entry.name).symlink_to(entry)
-    (pkg / "sensors" / "table.py").write_text(edited_table_source())
+    edited = {"rig/sensors/table.py": edited_table_source(), **edited_backend_sources()}
+    folders = {path.rsplit("/", 1)[0] for path in edited}
+    for folder in ["rig", *sorted(folders)]:
+        (root / folder).mkdir()
+        for entry in (ROOT / folder).iterdir():
+            rel = f"{folder}/{entry.name}"
+            if entry.name != "__pycache__" and rel not in edited and rel not in folders:
+                (root / rel).symlink_to(entry)
+    for path, text in edited.items():
+        (root / path).write_text(text)
     return root
 
 
 def edited_table(shadow: Path) -> ModuleType:
     """The edited rig/sensors/table.py as a module of its own (importing this rig)."""
-    spec = importlib.util.spec_from_file_location("edited_sensor_table",
-                                                  shadow / "rig" / "sensors" / "table.py")
+    return edited_module(shadow, "rig/sensors/table.py", "edited_sensor_table")
+
+
+def edited_module(shadow: Path, path: str, name: str) -> ModuleType:
+    """An edited file of the shadow package as a module of its own (importing this rig)."""
+    spec = importlib.util.spec_from_file_location(name, shadow / path)
     assert spec and spec.loader
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # for its dataclasses
@@ -122,7 +145,9 @@ def test_the_guide_s_sensor_arrives_in_a_simulated_run_file(shadow: Path,
 def test_the_guide_s_sensor_is_set_up_and_read_on_ni(shadow: Path, monkeypatch) -> None:
     edited = edited_table(shadow)
     monkeypatch.setattr(sensor_table, "SENSOR_TABLE", edited.SENSOR_TABLE)
-    _, block = guide()
+    edited_ni = edited_module(shadow, "rig/ni_backend/channels.py", "edited_ni_channels")
+    monkeypatch.setattr(ni_channels, "NI_CHANNELS", edited_ni.NI_CHANNELS)
+    _, (_, block, _) = guide()
     physical = re.search(r'add_ai_voltage_chan\(\s*"([^"]+)"', block)
     assert physical, "the guide's sensor is an analog input of the bridges' task"
     cfg = config.from_mapping({"backend": "ni", "drive": {"port": "/dev/ttyS0"}})

@@ -40,7 +40,7 @@ def test_load_cell_filter_lags_and_noise_has_the_spec_size() -> None:
 
 def test_the_built_in_load_cell_does_not_filter_again() -> None:
     lc = SensorSet.from_config(config.builtin_sim(sim={"load_cell_noise_n": 0.0}))["load_cell"]
-    assert lc.spec.sim.filter_hz is None
+    assert lc.chain.filter_hz is None
     f = np.r_[np.zeros(200), np.full(50, 20.0)]
     n = loadcell.to_newtons(lc.measure(f), lc.sensitivity, lc.offset)
     assert n == pytest.approx(f, abs=1e-9)  # the force as the drive model gives it

@@ -104,11 +104,11 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
     ch: dict[str, np.ndarray] = {"time": res.time.copy()}
     units = {"time": "s"}
     for s in sensor_table.sensors(cfg):
-        true = s.sim.truth(true_ch)
+        m = sensors[s.name]
+        true = m.chain.truth(true_ch)
         if true is None:  # the truth lacks it (a rigid shank has no strain)
             continue
-        m = sensors[s.name]
-        if s.sim.counts_from_start:
+        if m.chain.counts_from_start:
             m.offset = float(true[0])
         raw = m.measure(true)
         # stored calibrated with the sensors' true calibration

@@ -1,15 +1,18 @@
 """The sensors' NI channel set-up (nidaqmx): bridge channels on the SCXI-1520 (the load cell
 and the strain gauge; offset nulling and shunt calibration) and the encoders' counters on
-the PCI-6602. The sensor table (rig.sensors.table) names each built-in sensor's set-up
-with an ``NiSetup``; ``set_up`` adds it (or calls a sensor's own set-up function)."""
+the PCI-6602. Each kind of sensor of the sensor table (rig.sensors.table, ``Sensor.kind``)
+has its DAQmx channel in ``NI_CHANNELS``; ``channel(cfg, sensor)`` is a sensor's."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
-from rig.inputs.config import Encoder, LoadCell, StrainGauge
-from rig.sensors.table import NiSetup, Sensor
+from rig.errors import InputError
+from rig.inputs.config import Encoder, LoadCell, RigConfig, StrainGauge
+from rig.sensors.table import Sensor
 
 
 def add_bridge_channel(task: Any, physical_channel: str, name: str, range_mv_per_v: float,
@@ -87,16 +90,39 @@ def add_encoder(task: Any, enc: Encoder, name: str) -> None:
             units=LengthUnits.TICKS, dist_per_pulse=enc.metres_per_count * 4, initial_pos=0.0)
 
 
-SETUPS: dict[str, Callable[..., None]] = {
-    "load_cell": add_load_cell, "strain_gauge": add_strain_gauge, "encoder": add_encoder}
+@dataclass(frozen=True)
+class NiChannel:
+    """A sensor's DAQmx channel: ``add(task)`` adds it under the sensor's name; ``counter``:
+    False, a channel of the shared analog-input task (the bridges'); True, a counter task
+    of its own on the analog-input sample clock."""
+
+    add: Callable[[Any], None]
+    counter: bool = False
 
 
-def set_up(task: Any, sensor: Sensor) -> None:
-    """Add ``sensor``'s DAQmx channel to ``task``: its ``NiSetup`` by name, or its own
-    set-up function (a sensor added to the table with one, docs/architecture.md)."""
-    how = sensor.ni_channel
-    if callable(how):
-        how(task)
-    else:
-        named: NiSetup = how
-        SETUPS[named.kind](task, **dict(named.args))
+def _load_cell(cfg: RigConfig, s: Sensor) -> NiChannel:
+    return NiChannel(functools.partial(add_load_cell, cfg=cfg.channels.load_cell))
+
+
+def _strain_gauge(cfg: RigConfig, s: Sensor) -> NiChannel:
+    return NiChannel(functools.partial(add_strain_gauge, cfg=cfg.channels.strain_gauge))
+
+
+def _encoder(cfg: RigConfig, s: Sensor) -> NiChannel:
+    return NiChannel(functools.partial(add_encoder, enc=cfg.channels.encoders[s.name],
+                                       name=s.name), counter=True)
+
+
+# each kind of sensor in the sensor table -> its DAQmx channel (docs/architecture.md,
+# "Add a sensor")
+NI_CHANNELS: dict[str, Callable[[RigConfig, Sensor], NiChannel]] = {
+    "load_cell": _load_cell, "strain_gauge": _strain_gauge, "encoder": _encoder}
+
+
+def channel(cfg: RigConfig, sensor: Sensor) -> NiChannel:
+    """``sensor``'s DAQmx channel (its kind's entry in ``NI_CHANNELS``)."""
+    how = NI_CHANNELS.get(sensor.kind)
+    if how is None:
+        raise InputError(f"channels: sensor {sensor.name!r} (kind {sensor.kind!r}) has no NI "
+                         f"channel set-up (NI_CHANNELS in rig/ni_backend/channels.py)")
+    return how(cfg, sensor)

@@ -26,7 +26,7 @@ service enables the drive; a failed 0 V write (``write_volts(0)``, ``close``) fa
 back to a fresh task on the same channel.
 
 Acquisition side (``NiReader``, PCI-6034E + SCXI-1520, PCI-6602): the sensors
-of ``rig.sensors.table.sensors``, each set up by its own ``ni_channel``: one
+of ``rig.sensors.table.sensors``, each set up by its kind's ``channels.NI_CHANNELS``: one
 continuous AI task with the analog ones (the load-cell and strain bridges, V/V,
 the SCXI-1520's lowpass set from the config) at 2 kHz, and one counter task per
 counter (the encoders: ticks, x4) clocked from the AI sample clock; counters start
@@ -292,23 +292,24 @@ class NiReader(Reader):
         self.names = sensor_table.raw_names(cfg)
         table = sensor_table.sensors(cfg)
         self.ai = new_task("rig-bridges")
-        self.ai_names = [s.raw for s in table if not s.ni_counter]
-        self.ai_sensors = [s.name for s in table if not s.ni_counter]  # DAQmx channel names
+        chans = {s.name: channels.channel(cfg, s) for s in table}
+        self.ai_names = [s.raw for s in table if not chans[s.name].counter]
+        self.ai_sensors = [s.name for s in table if not chans[s.name].counter]  # DAQmx names
         for s in table:
-            if not s.ni_counter:
-                channels.set_up(self.ai, s)
+            if not chans[s.name].counter:
+                chans[s.name].add(self.ai)
         self.ai.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
                                            samps_per_chan=buf)
         self.ai.in_stream.overwrite = OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES
         self.ai_reader = nidaqmx.stream_readers.AnalogMultiChannelReader(self.ai.in_stream)
         self.ci: list[Any] = []
-        self.ci_names = [s.raw for s in table if s.ni_counter]
+        self.ci_names = [s.raw for s in table if chans[s.name].counter]
         self.ci_readers: list[Any] = []
         for s in table:
-            if not s.ni_counter:
+            if not chans[s.name].counter:
                 continue
             task = new_task(f"rig-encoder-{s.name}")
-            channels.set_up(task, s)
+            chans[s.name].add(task)
             task.timing.cfg_samp_clk_timing(rate, source=ch.ai_sample_clock,
                                             sample_mode=AcquisitionType.CONTINUOUS,
                                             samps_per_chan=buf)

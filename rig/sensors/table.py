@@ -2,10 +2,12 @@
 
 One table, ``sensors(cfg)``, lists every sensor of a rig in the order of the card rows'
 columns (after ``sample``): its raw column and SI channel with units and descriptions,
-its data-sheet calibration, its raw -> SI conversion, its NI channel set-up and its
-simulated chain (true value -> reading). The NI reader, the simulated rig, the
-acquisition process, `rig synth` and the calibration bench all read it; adding a sensor
-is one entry in ``SENSOR_TABLE`` (docs/architecture.md, "Add a sensor").
+its data-sheet calibration, its raw -> SI conversion and its ``kind``, by which each
+backend finds its own part: the NI channel set-up (rig.ni_backend.channels.NI_CHANNELS)
+and the simulated chain, true value -> reading (rig.sim_backend.sensors.SIM_CHAINS). The
+NI reader, the simulated rig, the acquisition process, `rig synth` and the calibration
+bench all read it; adding a sensor is one entry in ``SENSOR_TABLE`` and its part in each
+backend (docs/architecture.md, "Add a sensor").
 
 Which calibration applies to each sensor is asked in one place,
 ``rig.calibration.records.lookup`` (the newest valid record per sensor, else the
@@ -19,7 +21,7 @@ data sheet's nominal one from ``nominal`` here, marked ``nominal: true``). Conve
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -48,34 +50,6 @@ class CalRecord:
 
 
 Convert = Callable[[np.ndarray, float, float], Any]  # (values, sensitivity, offset)
-Truth = Callable[[Mapping[str, np.ndarray]], np.ndarray | None]
-
-
-@dataclass(frozen=True)
-class SimChain:
-    """How the simulated rig (and `rig synth`) makes a sensor's reading from the action.
-
-    reading = to_raw(filtered true value + noise, true sensitivity, true offset); the true
-    calibration is the nominal one moved by seeded spreads (rig.sim_backend.sensors)."""
-
-    truth: Truth               # true value from the model's channels ("force": the drive's
-                               # force on the key top); None: the model lacks it (see needs)
-    noise: float | None = None         # 1 sigma added to the true value (SI); None: none drawn
-    spread: float = 0.0                # relative 1 sigma of the true sensitivity around nominal
-    offset_sd: float | None = None     # 1 sigma of the true offset around 0; None: not drawn
-    filter_hz: float | None = None     # a 4-pole low-pass in the chain (before the noise)
-    counts_from_start: bool = False    # a counter: count 0 at the start (true offset = the
-                                       # true value then)
-    needs: str = ""                    # what the model must have for ``truth`` (the error)
-
-
-@dataclass(frozen=True)
-class NiSetup:
-    """A built-in sensor's NI channel set-up, by name: rig.ni_backend.channels.SETUPS[kind]
-    called with the task and ``args``."""
-
-    kind: str
-    args: Mapping[str, Any]
 
 
 @dataclass(frozen=True)
@@ -93,12 +67,9 @@ class Sensor:
     offset: float
     to_si: Convert             # raw -> SI with a calibration (sensitivity, offset)
     to_raw: Convert            # SI -> raw: what the card reads of a true value
-    ni_channel: NiSetup | Callable[[Any], None]  # its DAQmx channel: a built-in set-up
-                                                 # (rig.ni_backend.channels) or a function
-                                                 # adding it to an nidaqmx task
-    sim: SimChain
-    ni_counter: bool = False   # False: a channel of the shared analog-input task; True: a
-                               # counter task of its own on the analog-input sample clock
+    kind: str                  # what the backends look its parts up by: its NI channel
+                               # (rig.ni_backend.channels.NI_CHANNELS), its simulated chain
+                               # (rig.sim_backend.sensors.SIM_CHAINS)
 
 
 def _load_cell(cfg: RigConfig) -> list[Sensor]:
@@ -107,10 +78,7 @@ def _load_cell(cfg: RigConfig) -> list[Sensor]:
         "load_cell", "load_cell_ratio", "V/V", "load-cell bridge output, raw",
         "force", "N", "force on the key top from the load cell (calibration in metadata)",
         loadcell.nominal_sensitivity(lc), 0.0, loadcell.to_newtons, loadcell.to_ratio,
-        NiSetup("load_cell", {"cfg": lc}),
-        SimChain(lambda ch: ch["force"], noise=cfg.sim.load_cell_noise_n,
-                 spread=cfg.sim.sensor_spread, offset_sd=0.02e-3,
-                 filter_hz=cfg.sim.load_cell_filter_hz))]
+        "load_cell")]
 
 
 def _strain_gauge(cfg: RigConfig) -> list[Sensor]:
@@ -122,12 +90,7 @@ def _strain_gauge(cfg: RigConfig) -> list[Sensor]:
         "strain_gauge", "strain_ratio", "V/V", "strain-gauge quarter bridge output, raw",
         "shank_strain", "m/m", "hammer-shank strain at the gauge, + = tension",
         g.gage_factor, 0.0, functools.partial(strain.to_strain, **wires),
-        functools.partial(strain.to_ratio, **wires),
-        NiSetup("strain_gauge", {"cfg": g}),
-        SimChain(lambda ch: ch.get("shank_strain"), noise=cfg.sim.strain_noise,
-                 spread=cfg.sim.sensor_spread, offset_sd=0.1e-3,
-                 needs="the flexible_shank effect (or set channels.strain_gauge.enabled: "
-                       "false)"))]
+        functools.partial(strain.to_ratio, **wires), "strain_gauge")]
 
 
 def _encoders(cfg: RigConfig) -> list[Sensor]:
@@ -138,19 +101,6 @@ def _encoders(cfg: RigConfig) -> list[Sensor]:
     for n, enc in cfg.channels.encoders.items():
         start = ("motion from the pose at the acquisition start" if enc.initial_value == 0
                  else f"{enc.initial_value:g} {enc.units} at the acquisition start + motion")
-        if enc.kind == "angular":
-            true = f"{enc.body}_angle"
-        elif enc.body == "key":
-            true = "key_dip"
-        else:
-            true = ""
-
-        def truth(ch: Mapping[str, np.ndarray], name: str = n, key: str = true) -> np.ndarray:
-            if not key:
-                raise InputError(f"channels.encoders.{name}: the simulated rig measures "
-                                 f"linear motion only on the key (key dip)")
-            return ch[key]
-
         out.append(Sensor(
             n, f"{n}_counts", "counts",
             f"{n} encoder counts (x4) since the acquisition start, on the {enc.body}",
@@ -158,10 +108,7 @@ def _encoders(cfg: RigConfig) -> list[Sensor]:
             f"{enc.body} from the {n} encoder: calibration offset + counted motion "
             f"(nominal: {start})",
             enc.sign * enc.si_per_count, enc.initial_value, encoders.to_si, encoders.to_counts,
-            NiSetup("encoder", {"enc": enc, "name": n}),
-            # mounting (eccentricity, cosine error) makes the true scale differ slightly
-            SimChain(truth, spread=0.1 * cfg.sim.sensor_spread, counts_from_start=True),
-            ni_counter=True))
+            "encoder"))
     return out
 
 

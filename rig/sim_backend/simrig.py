@@ -41,12 +41,14 @@ class SimRig:
         self.sensors = SensorSet.from_config(config)
         rest = self.model.rest_state()
         at_rest = self.model.channels(np.zeros(1), rest[None, :], np.zeros(1))
+        self._truths = [self.sensors[s.name].chain.truth for s in self.table]
         for s in self.table:
-            true = s.sim.truth(at_rest)
+            chain = self.sensors[s.name].chain
+            true = chain.truth(at_rest)
             if true is None:
                 raise InputError(f"sim.effects: the {s.name.replace('_', ' ')} needs "
-                                 f"{s.sim.needs}")
-            if s.sim.counts_from_start:  # count 0 at the rest pose
+                                 f"{chain.needs}")
+            if chain.counts_from_start:  # count 0 at the rest pose
                 self.sensors[s.name].offset = float(true[0])
         self.drive_state: DriveStatus = drive_state or DriveState(enabled=True)
         self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
@@ -72,7 +74,7 @@ class SimRig:
     def _physical(self, time: np.ndarray, states: np.ndarray, force: np.ndarray) -> np.ndarray:
         """True values the sensors see, one column per sensor (the table's order)."""
         ch = self.model.channels(time, states, force)
-        return np.column_stack([np.asarray(s.sim.truth(ch), float) for s in self.table])
+        return np.column_stack([np.asarray(truth(ch), float) for truth in self._truths])
 
     def cycle(self, volts: float) -> np.ndarray:
         """Hold ``volts`` for one control period; the card rows of that period."""
