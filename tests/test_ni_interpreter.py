@@ -176,12 +176,14 @@ def test_close_falls_back_to_a_fresh_task_when_the_loop_task_fails(fake) -> None
 
 
 def test_the_supervisor_zeroes_the_drive_output_with_a_new_task(fake, rig) -> None:
+    from rig.loop.backends import serial_drive
     from rig.loop.supervisor import make_safe
 
     rig.start()
     rig.daq.wait_for_tick()
     rig.daq.write_volts(2.0)
-    make_safe(rig.reader, ni_config(drive={"port": "sim"}))
+    cfg = ni_config(drive={"port": "sim"})
+    make_safe(rig.reader, cfg, serial_drive=serial_drive(cfg))
     safe = fake.of("create_ao_voltage_chan", "rig-safe-stop")[0]
     assert safe.args["physical_channel"] == "Dev1/ao0"
     assert fake.ao["Dev1/ao0"] == 0.0 and fake.task("rig-safe-stop").closed

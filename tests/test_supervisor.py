@@ -9,6 +9,7 @@ import time
 from typing import Any
 
 from rig.inputs import config
+from rig.loop.backends import serial_drive
 from rig.loop.supervisor import ControllerWatch, make_safe
 from rig.sim_backend.drive_pty import SimDrive
 from rig.sim_backend.drive_state import DriveState
@@ -57,7 +58,7 @@ def test_make_safe_zeroes_then_disables_a_real_drive_over_serial() -> None:
     try:
         real = config.from_mapping({"backend": "sim", "drive": {"port": sim.port}})
         reader = _Reader()
-        make_safe(reader, real)
+        make_safe(reader, real, serial_drive=serial_drive(real))
         assert reader.zeroed
         assert sim.log[-1] == cfg.drive.disable and not state.enabled
     finally:
@@ -76,7 +77,7 @@ def test_make_safe_goes_on_to_the_drive_when_zeroing_fails() -> None:
     try:
         real = config.from_mapping({"backend": "sim", "drive": {"port": sim.port}})
         try:
-            make_safe(Broken(), real)
+            make_safe(Broken(), real, serial_drive=serial_drive(real))
         except RuntimeError as exc:
             assert "card gone" in str(exc)
         else:

@@ -47,7 +47,7 @@ from rig.daq import DaqFault
 from rig.errors import InputError, RigError
 from rig.inputs.config import RigConfig, from_mapping
 from rig.loop import journal
-from rig.loop.backends import open_reader
+from rig.loop.backends import open_reader, serial_drive
 from rig.loop.supervisor import ControllerWatch, make_safe
 from rig.recordings import runfile
 from rig.sensors import table as sensor_table
@@ -301,7 +301,8 @@ def _acquire(spec: dict[str, Any], cfg_data: dict[str, Any], cals: dict[str, Any
         acq = Acquisition(cfg, records, writer, ctrl, status, jw)
         jw.begin(Path(path), "measured", dict(writer.file.attrs), metadata)
         reader = open_reader(spec)
-        watch = ControllerWatch(controller_pid, functools.partial(make_safe, reader, cfg))
+        watch = ControllerWatch(controller_pid, functools.partial(
+            make_safe, reader, cfg, serial_drive=serial_drive(cfg)))
         watch.start()
         status.put(("ready",))
         start_end = time.monotonic() + cfg.acquisition.start_timeout_s

@@ -68,11 +68,17 @@ def open_bench(cfg: RigConfig) -> Bench:
     raise _unknown(cfg.backend)
 
 
+def serial_drive(cfg: RigConfig) -> bool:
+    """Whether the drive is a real one on its serial port (``drive.port`` a device), not
+    the simulated drive (``drive.port: sim``)."""
+    return cfg.drive.port != "sim"
+
+
 def open_drive_port(cfg: RigConfig, daq: Daq) -> tuple[str | None, Any]:
     """The drive's serial port for ``rig.loop.drive.Drive``: ``(None, None)`` for the
     configured port; with ``drive.port: sim``, the simulated drive on a pseudo-terminal
     (the simulated rig only) as ``(its port, the simulated drive)``, closed by the caller."""
-    if cfg.drive.port != "sim":
+    if serial_drive(cfg):
         return None, None
     if cfg.backend != "sim":
         raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
@@ -86,7 +92,7 @@ def open_drive_port(cfg: RigConfig, daq: Daq) -> tuple[str | None, Any]:
 
 def check_drive_port(cfg: RigConfig) -> None:
     """Refuse, before anything starts, a drive link this backend cannot open."""
-    if cfg.backend != "sim" and cfg.drive.port == "sim":
+    if cfg.backend != "sim" and not serial_drive(cfg):
         raise InputError("drive.port: 'sim' (the simulated drive) needs backend: sim")
 
 

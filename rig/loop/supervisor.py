@@ -14,8 +14,8 @@ On the death, in that thread (``make_safe``), in this order:
 1. the drive demand goes to 0 V: ``Reader.safe_stop()`` (the simulated plant: its drive is
    disabled in the shared block and told to stop; NI: a new task writes 0 V on the drive's AO
    channel, since an NI analog output holds its last value when its task's process dies);
-2. a real drive (``drive.port`` not ``sim``) is disabled over its serial link (the dead
-   process released the port);
+2. a real drive (``serial_drive``: rig.loop.backends.serial_drive, the drive's port not the
+   simulated drive) is disabled over its serial link (the dead process released the port);
 then the acquisition loop drains the samples already buffered, closes the file
 ``aborted: the controller process ... died`` and exits; the reader releases the shared blocks
 the dead process owned.
@@ -93,14 +93,16 @@ class ControllerWatch:
         self.fd = None
 
 
-def make_safe(reader: Any, cfg: Any) -> None:
-    """Zero the demand and disable the drive after the loop's process died (see module doc)."""
+def make_safe(reader: Any, cfg: Any, *, serial_drive: bool) -> None:
+    """Zero the demand and disable the drive after the loop's process died (see module doc);
+    ``serial_drive``: the drive is a real one, disabled over its serial link
+    (rig.loop.backends.serial_drive)."""
     errors = []
     try:
         reader.safe_stop()
     except Exception as exc:
         errors.append(f"zeroing the output: {type(exc).__name__}: {exc}")
-    if cfg.drive.port != "sim":
+    if serial_drive:
         from rig.loop.drive import Drive
 
         try:
