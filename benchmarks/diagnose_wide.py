@@ -381,7 +381,8 @@ def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float 
     return 1.0 - float(np.mean(r_written ** 2) / np.mean(r_base ** 2)), p
 
 
-def run_seed(seed: int, jobs: int | None) -> tuple[Draw, Score, list[str]]:
+def run_seed(seed: int, jobs: int | None, weights: str = "none"
+             ) -> tuple[Draw, Score, list[str]]:
     """Synthesize, diagnose, write and check one seed."""
     from rig.analysis import diagnose as dg
     from rig.analysis import measurement as ms
@@ -394,7 +395,7 @@ def run_seed(seed: int, jobs: int | None) -> tuple[Draw, Score, list[str]]:
         synth_run(d, d.held_out, held, seed + 100_000)
         meas = ms.load(run)
         t0 = time.perf_counter()
-        diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=jobs)
+        diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=jobs, weights=weights)
         seconds = time.perf_counter() - t0
         final = diag.final
         s = score(d, diag.chosen_names, final.values if final else {},
@@ -471,6 +472,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--weights", choices=("none", "noise"), default="none",
+                    help="diagnose's sample weights (docs/workflow.md; default: diagnose's)")
     ap.add_argument("--jobs", type=int, default=None,
                     help="processes per diagnose (its candidates' fits)")
     ap.add_argument("--json", type=Path, default=None, help="write seeds and summary here")
@@ -497,7 +500,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.draws_only:
             continue
         try:
-            _, s, notes = run_seed(seed, args.jobs)
+            _, s, notes = run_seed(seed, args.jobs, args.weights)
         except RuntimeError as e:  # the truth's simulation failed: no run to diagnose
             print(f"  skipped: {e}", flush=True)
             records.append({"draw": asdict(d), "score": None, "error": str(e)})

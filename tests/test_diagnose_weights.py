@@ -1,5 +1,6 @@
-"""Issue 39, long windows: diagnose weighs each sample by a noise model (``fit.noise_weights``:
-output noise plus the model's response to the input force's noise), so that the key's
+"""Issue 39, long windows: diagnose(weights="noise") weighs each sample by a noise model
+(``fit.noise_weights``: output noise plus the model's response to the input force's
+noise; the default weighs every sample alike), so that the key's
 return, where an extra unit of the force's noise moves the prediction 100-300 times more
 than during the blow, does not drown what the blow shows.
 
@@ -107,7 +108,7 @@ def test_a_long_window_with_the_keys_return_finds_liftoff(long_window: tuple) ->
     """The whole diagnosis on seed 29's run: lift-off alone (unweighted: nothing), its
     interval covering the truth."""
     d, meas = long_window
-    diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=2)
+    diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=2, weights="noise")
     assert diag.chosen_names == ["key_liftoff"], "\n".join(diag.report_lines())
     f = diag.final
     assert f is not None

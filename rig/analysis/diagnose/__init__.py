@@ -18,12 +18,13 @@ the final one: its values, uncertainties (HAC plus the input force's noise,
 ``single=True`` gives only the first round: each candidate alone against the
 model, ranked.
 
-Every residual of the diagnosis (fits, scores, tests, the remainder) is weighed by a
-noise model of the data under the base model (``weights="noise"``, the default;
-``fit.noise_weights``: white output noise plus the model's response to the input force's
+With ``weights="noise"`` every residual of the diagnosis (fits, scores, tests, the
+remainder) is weighed by a noise model of the data under the base model
+(``fit.noise_weights``: white output noise plus the model's response to the input force's
 noise, the squared weights' mean 1 in each trial's channel): where the force's noise moves
 the prediction most (the key's return in a long window), a sample says least about the
-model. ``weights="none"`` weighs every sample alike.
+model. The default, ``weights="none"``, weighs every sample alike: on short two-blow
+windows the weighting cost the held-out test power (docs/workflow.md).
 
 A candidate counts as significant only when all hold:
 - it lowers the training error and removes at least ``min_gain`` of the held-out

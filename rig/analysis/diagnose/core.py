@@ -49,7 +49,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              min_noise_gain: float = 3.0, label: str = "model", align_s: float = 5e-4,
              single: bool = False, max_effects: int = 3, alpha: float = 0.05,
              z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
-             final_nfev: int = 40, weights: str = "noise", executor: Executor | None = None,
+             final_nfev: int = 40, weights: str = "none", executor: Executor | None = None,
              progress: Callable[[float, float, str], None] | None = None) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses."""
