@@ -362,17 +362,22 @@ def test_loop_cpu_not_on_this_machine_is_refused_before_anything_starts(tmp_path
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
 @pytest.mark.slow
-def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path) -> None:
+def test_the_runs_helper_threads_and_plant_share_the_loops_real_time_class(
+        tmp_path: Path) -> None:
     """The drive monitor, the simulated drive and the command queue's feeder take the GIL: in
-    the normal class, one preempted while holding it holds the loop (docs/performance.md)."""
+    the normal class, one preempted while holding it holds the loop (docs/performance.md).
+    In real time the simulated plant's process makes the samples the loop's controller
+    reads: in the normal class a loaded machine starves it and the loop reads forces tens to
+    hundreds of ms old (issue 41). All run one below the loop, and back after."""
     seen: dict[str, tuple[int, int]] = {}
 
     def hook(ctx: svc.CycleContext) -> None:
         if not seen:
-            for th in threading.enumerate():
-                if th.native_id is not None:
-                    seen[th.name] = (os.sched_getscheduler(th.native_id),
-                                     os.sched_getparam(th.native_id).sched_priority)
+            ids = {th.name: th.native_id for th in threading.enumerate()
+                   if th.native_id is not None}
+            (ids["plant"],) = ctx.daq.helper_processes()
+            for name, tid in ids.items():
+                seen[name] = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
 
     rep = svc.run(_short_profile(tmp_path),
                   sim_cfg(tmp_path, loop={"realtime_priority": 7}, sim={"realtime": True}),
@@ -381,35 +386,11 @@ def test_the_runs_helper_threads_share_the_loops_real_time_class(tmp_path: Path)
     if not rep.lateness["realtime_priority"]:
         pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
     assert seen["MainThread"] == (os.SCHED_FIFO, 7)
-    for name in ("drive-monitor", "sim-drive", "QueueFeederThread"):
+    for name in ("drive-monitor", "sim-drive", "QueueFeederThread", "plant"):
         assert seen[name] == (os.SCHED_FIFO, 6), (name, seen)
     after = {th.name: os.sched_getscheduler(th.native_id) for th in threading.enumerate()
              if th.native_id is not None}
     assert set(after.values()) == {os.SCHED_OTHER}, after
-
-
-@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")
-@pytest.mark.slow
-def test_the_real_time_plant_shares_the_loops_real_time_class(tmp_path: Path) -> None:
-    """In real time the simulated plant's process makes the samples the loop's controller
-    reads: in the normal class a loaded machine starves it and the loop reads forces tens to
-    hundreds of ms old (issue 41), so it runs one below the loop, and back after."""
-    seen: dict[str, tuple[int, int]] = {}
-    pids: list[int] = []
-
-    def hook(ctx: svc.CycleContext) -> None:
-        if not seen:
-            (pid,) = ctx.daq.helper_processes()
-            pids.append(pid)
-            seen["plant"] = (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority)
-
-    rep = svc.run(_short_profile(tmp_path),
-                  sim_cfg(tmp_path, loop={"realtime_priority": 7}, sim={"realtime": True}),
-                  out=tmp_path / "rt.h5", on_cycle=hook)
-    assert rep.complete, rep.status
-    if not rep.lateness["realtime_priority"]:
-        pytest.skip("this user may not use SCHED_FIFO (docs/running.md)")
-    assert seen["plant"] == (os.SCHED_FIFO, 6), seen
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="POSIX scheduling only")

@@ -80,8 +80,12 @@ END_RESERVE_BYTES = 4096
 
 def end_path(path: str | Path) -> Path:
     """The close record's reserve beside run file ``path`` (``RUN.h5.journal.end``)."""
-    p = journal_path(path)
-    return p.with_name(p.name + ".end")
+    return _reserve_of(journal_path(path))
+
+
+def _reserve_of(jpath: Path) -> Path:
+    """The reserve beside journal ``jpath``."""
+    return jpath.with_name(jpath.name + ".end")
 
 
 def remove(path: str | Path) -> None:
@@ -298,7 +302,7 @@ class JournalWriter:
         if len(rec) > END_RESERVE_BYTES:  # (a status is one line; keep its start)
             rec = MAGIC + _encode("close", {"status": status[:END_RESERVE_BYTES // 2]}, [])
         try:
-            fd = os.open(self.path.with_name(self.path.name + ".end"), os.O_WRONLY)
+            fd = os.open(_reserve_of(self.path), os.O_WRONLY)
         except OSError:
             return False
         try:
@@ -414,7 +418,7 @@ def _recover_locked(run_path: Path, jpath: Path, target: Path,
     if not sc.records or sc.records[0][0].get("k") != "begin":
         raise InputError(f"{jpath}: holds no whole first record (the run wrote nothing "
                          f"recoverable)")
-    end = jpath.with_name(jpath.name + ".end")
+    end = _reserve_of(jpath)
     if not any(doc["k"] == "close" for doc, _ in sc.records) and end.is_file():
         # the final status the full journal could not take, in its reserve
         sc.records += [r for r in scan(end).records if r[0].get("k") == "close"][:1]
