@@ -428,6 +428,12 @@ class Sim(_Strict):
     realtime: bool = True
     seed: int = 4
     effects: list[str] = Field(default_factory=lambda: ["flexible_shank"])
+    friction: Literal["regularised", "stick"] = Field(
+        "regularised", description="the simulated action's friction: regularised (the "
+                                   "thesis's Eq. 3.6 and 3.8, as every other command's model) "
+                                   "or stick (Dahl's law at every pin and contact with "
+                                   "friction: the action sticks under a slow press as a real "
+                                   "one does; docs/touch.md)")
     drive_model: Literal["single", "asymmetric", "step_size"] = Field(
         "single", description="Appendix D drive model (rig.sim_backend.drive_model): single, "
                               "asymmetric (rise/fall models) or step_size (slew-limited)")

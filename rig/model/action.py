@@ -131,11 +131,19 @@ class ActionModel:
                        (k.QV2, num["atol_shank_tip"] / length**3)):
             self.atol[q] = tol
             self.atol[k.NQ + q] = tol * num["shank_rate_factor"]
+        # the Dahl option's bristles: a thousandth of their presliding (m or rad)
+        dahl = build.params.tree["friction_law"].get("dahl", {})
+        for zs in range(k.QZ + 1, k.NQ):
+            size = dahl.get("presliding_angle" if zs < k.QZ_CONTACT[1] else "presliding", 1e-6)
+            self.atol[zs] = 1e-3 * float(size)
+            self.atol[k.NQ + zs] = self.atol[zs] / float(dahl.get("damping_time", 1e-3))
         self.atol = np.r_[self.atol, [st.atol for e, _ in self.effect_states for st in e.states]]
         self.active = np.ones(k.NQ, dtype=bool)
         self.active[k.QYK] = build.flags["liftoff"]
         self.active[k.QU1 : k.QV2 + 1] = build.flags["flexible_shank"]
         self.active[k.QZ] = self.packed.arrays.sp[k.S_BRISTLE] > 0.5
+        self.active[k.QZ + 1 :] = False
+        self.active[k.bristle_coords(self.packed.arrays.cl, self.packed.arrays.jf)] = True
         pts = build.params.tree["points"]
         self._head_pt = np.array(pts["hammer_head"][HEAD_STRIKE_POINT]["at"], dtype=float)
         beam = build.params.tree["hammer_shank_beam"]
@@ -236,7 +244,7 @@ class ActionModel:
         st = self.build.params.tree["initial_state"]
         y = np.zeros(self.n_state)
         for i, name in enumerate(COORDINATES):
-            if self.active[i] and name not in ("y_k", "z_b"):
+            if self.active[i] and name != "y_k" and not name.startswith("z_"):
                 y[i] = st[name]
         for e, sl in self.effect_states:
             y[sl] = [s.initial for s in e.states]

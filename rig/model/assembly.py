@@ -81,7 +81,8 @@ def _feature(params: Parameters, ref: str, sections: list[float], shank_len: flo
     return row
 
 
-FRICTION_LAWS = ("smoothed", "bristle")
+FRICTION_LAWS = ("smoothed", "bristle", "dahl")
+JOINT_FRICTION_LAWS = ("smoothed", "dahl")
 
 
 def static_coefficient(mu_a: float, b1: float, b2: float) -> float:
@@ -90,13 +91,31 @@ def static_coefficient(mu_a: float, b1: float, b2: float) -> float:
     return float(mu_a * np.max(np.tanh(r) + b1 * r / (1.0 + b2 * r**4)))
 
 
-def _friction_law(law: np.ndarray, cid: int, name: str, bristle: dict) -> None:
+def _positive(spec: dict, where: str, fields: tuple[str, ...]) -> None:
+    for field in fields:
+        v = spec.get(field)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and float(v) > 0.0
+                and math.isfinite(float(v))):
+            raise InputError(f"friction_law.{where}.{field}: expected a positive value, "
+                             f"got {v!r}")
+
+
+def _friction_law(law: np.ndarray, cid: int, name: str, bristle: dict, dahl: dict) -> None:
     """Fill the friction-law columns of contact ``cid``'s law row."""
     if name not in FRICTION_LAWS:
         raise InputError(f"friction_law.contact.{cid}: expected one of {FRICTION_LAWS}, "
                          f"got {name!r}")
     if name == "smoothed" or law[k.L_MU_A] <= 0.0:
         law[k.L_FLAW] = k.FRICTION_SMOOTHED
+        return
+    if name == "dahl":
+        # Dahl's law: the bristle law with one coefficient, Eq. 3.6's kinetic A (no static
+        # hump: it sticks up to A f_n and slides at A f_n, Coulomb's law as rig touch takes it)
+        _positive(dahl, "dahl", ("presliding", "damping_time"))
+        law[k.L_FLAW] = k.FRICTION_BRISTLE
+        law[k.L_MU_S] = law[k.L_MU_A]
+        law[k.L_SIG0] = law[k.L_MU_A] / dahl["presliding"]
+        law[k.L_SIG1] = law[k.L_SIG0] * dahl["damping_time"]
         return
     mu_s = static_coefficient(law[k.L_MU_A], law[k.L_B1], law[k.L_B2])
     for field in ("presliding", "damping_time", "relax_time", "release_time"):
@@ -144,6 +163,8 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
     sp[k.S_ZTAU] = bristle["relax_time"]
     sp[k.S_ZOPEN] = bristle["release_time"]
     laws = t["friction_law"]["contact"]
+    dahl = t["friction_law"].get("dahl", {})
+    joint_laws = t["friction_law"].get("joint", {})
 
     sections: list[float] = []
     cf_rows, cl_rows, ids, names = [], [], [], []
@@ -163,24 +184,45 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
         on = cid != 14 or liftoff  # contact 14 (balance rail) exists only with lift-off
         law[k.L_ON] = 1.0 if on else 0.0
         law[k.L_TYPE] = k.LAW_HUNT_CROSSLEY
-        _friction_law(law, cid, laws.get(cid, "smoothed"), bristle)
+        _friction_law(law, cid, laws.get(cid, "smoothed"), bristle, dahl)
         cl_rows.append(law)
     cf = np.array(cf_rows, dtype=float)
     cl = np.array(cl_rows, dtype=float)
     bristle_on = (cl[:, k.L_FLAW] == k.FRICTION_BRISTLE) & (cl[:, k.L_ON] > 0.5)
     n_bristle = int(np.count_nonzero(bristle_on))
-    if n_bristle > 1:
-        raise InputError(f"friction_law.contact: at most one contact may use the bristle law "
-                         f"(the model has one bristle coordinate), got {n_bristle}")
-    sp[k.S_BRISTLE] = float(n_bristle)
+    if n_bristle > len(k.QZ_CONTACT):
+        raise InputError(f"friction_law.contact: at most {len(k.QZ_CONTACT)} contacts may use "
+                         f"a bristle law (the model has {len(k.QZ_CONTACT)} contact bristle "
+                         f"coordinates), got {n_bristle}")
+    # the bristle law's contact (the back check's) keeps the first coordinate, z_b; the
+    # Dahl option's contacts take the others
+    order = sorted(np.flatnonzero(bristle_on),
+                   key=lambda i: laws.get(ids[i], "smoothed") != "bristle")
+    for slot, i in zip(k.QZ_CONTACT, order, strict=False):
+        cl[i, k.L_ZSLOT] = slot
+    sp[k.S_BRISTLE] = 1.0 if n_bristle else 0.0
 
-    jf = np.zeros((6, 4))
+    jf = np.zeros((6, k.N_JF))
     wt = t["friction_threshold"]["joint_wt"]
+    for name in joint_laws:
+        if name not in JOINTS:
+            raise InputError(f"friction_law.joint.{name}: expected one of the pins "
+                             f"{tuple(JOINTS)}")
     for i, name in enumerate(JOINTS):
         spec = t["joint_friction"][name]
-        jf[i] = spec["E"], spec["F1"], spec["F2"], wt[name]
+        jf[i, :4] = spec["E"], spec["F1"], spec["F2"], wt[name]
+        law = joint_laws.get(name, "smoothed")
+        if law not in JOINT_FRICTION_LAWS:
+            raise InputError(f"friction_law.joint.{name}: expected one of "
+                             f"{JOINT_FRICTION_LAWS}, got {law!r}")
+        if law == "dahl" and spec["E"] > 0.0:
+            # Dahl's law at the pin: torque E sig0 z, sig0 = 1 / the presliding angle
+            _positive(dahl, "dahl", ("presliding_angle", "damping_time"))
+            jf[i, k.J_LAW] = 1.0
+            jf[i, k.J_SIG0] = 1.0 / dahl["presliding_angle"]
+            jf[i, k.J_SIG1] = jf[i, k.J_SIG0] * dahl["damping_time"]
     pin = t["key_pin_friction"]
-    jf[5] = pin["force"], 0.0, 0.0, pin["speed_scale"]
+    jf[5, :4] = pin["force"], 0.0, 0.0, pin["speed_scale"]
 
     b = t["bodies"]
     me_rows = []

@@ -535,6 +535,13 @@ def ros_work(y0: np.ndarray, na: int, model: k.Model) -> tuple[np.ndarray, ...]:
     if model.sp[k.S_FLEX] > 0.5 and model.sp[k.S_AXIAL_ONEWAY] > 0.5:
         ew[k.QU1] = 0.0
         ew[k.NQ + k.QU1] = 0.0
+    # the Dahl option's bristle coordinates that do not move are out of it too (as before
+    # they existed)
+    moving = k.bristle_coords(model.cl, model.jf)
+    for c in range(k.QZ + 1, k.NQ):
+        if c not in moving:
+            ew[c] = 0.0
+            ew[k.NQ + c] = 0.0
     return (np.array(y0, dtype=float, copy=True), np.empty(n), np.empty(n), np.empty(n),
             np.empty(n), np.empty(n), np.empty(n), np.zeros((ROS_M.shape[0], n)),
             np.zeros((6, n)), np.empty((na, na)), np.zeros(na, dtype=np.int64), np.empty(na),
@@ -620,6 +627,8 @@ def _active(model: k.Model, n_state: int) -> np.ndarray:
     active[k.QYK] = sp[k.S_LIFTOFF] > 0.5
     active[k.QU1 : k.QV2 + 1] = sp[k.S_FLEX] > 0.5
     active[k.QZ] = sp[k.S_BRISTLE] > 0.5
+    active[k.QZ + 1 :] = False
+    active[k.bristle_coords(model.cl, model.jf)] = True
     if sp[k.S_AXIAL_ONEWAY] > 0.5:
         active[k.QU1] = False  # advanced exactly by ros_run, not by the steps
     return np.flatnonzero(active).astype(np.int64)

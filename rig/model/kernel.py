@@ -11,8 +11,15 @@ Generalized coordinates (always 10; those of effects that are off stay frozen):
     6 u1       shank axial elastic coordinate (1)                [flexible_shank]
     7 v1       shank bending coordinate, x^2 term (1/m)          [flexible_shank]
     8 v2       shank bending coordinate, x^3 term (1/m^2)        [flexible_shank]
-    9 z_b      bristle deflection of the one contact whose friction is the bristle
+    9 z_b      bristle deflection of the first contact whose friction is a bristle
                law (m), the back check's by default              [bristle law]
+   10-14       bristle deflections of the pins key, whippen, jack, repetition and
+               hammer (rad)                                      [Dahl law at the pins]
+   15-17       bristle deflections of further contacts with a bristle law (m)
+
+Coordinates 10-17 exist for the Dahl friction option (``friction_law.joint`` and
+``friction_law.contact`` ``dahl``: every friction element sticks, as a real action does;
+docs/touch.md); off, they are frozen at zero and the model is as before.
 
 The mass matrix is block diagonal (key | whippen, jack, repetition | hammer and
 shank | bristle); each block is assembled and solved on its own. State y = [q (10),
@@ -51,11 +58,14 @@ from numba import njit
 # model, no reference counting (``_nrt``: numba's own flag, missing from its typing)
 HOT: dict[str, Any] = {"cache": True, "error_model": "numpy", "_nrt": False}
 
-NQ = 10
+NQ = 18
 NY = 2 * NQ
-NQ_MECH = 9  # the mechanism's coordinates (all but z_b): what Python-level effects see
+NQ_MECH = 9  # the mechanism's coordinates (all but the bristles): what Python-level effects see
 QK, QYK, QW, QJ, QR, QH, QU1, QV1, QV2, QZ = range(10)
-BLOCKS = ((0, 2), (2, 5), (5, 9), (9, 10))
+QZ_PIN = 10  # the pins' bristle deflections: QZ_PIN + joint row (key ... hammer)
+QZ_CONTACT = (QZ, 15, 16, 17)  # the coordinates of the contacts' bristles, in turn
+NY_BASE = 20  # the state before the Dahl option's bristles (the error norms' count)
+BLOCKS = ((0, 2), (2, 5), (5, 9))  # the mechanism's blocks; each bristle is its own
 
 # frames
 F_GROUND, F_PIVOT, F_KEY, F_WHIPPEN, F_JACK, F_REP, F_HAMMER, F_HEAD = range(8)
@@ -93,8 +103,13 @@ L_A, L_B, L_C, L_D, L_MU_A, L_B1, L_B2, L_VT, L_ON, L_TYPE, L_P1, L_P2 = range(1
 # stiffness L_SIG0 (1/m, per newton of normal force), damping L_SIG1 (s/m) and static
 # coefficient L_MU_S (L_MU_A stays the kinetic one, L_VT the Stribeck speed)
 L_FLAW, L_SIG0, L_SIG1, L_MU_S = 12, 13, 14, 15
-N_LAW = 16
+L_ZSLOT = 16  # the coordinate of the contact's bristle deflection (a bristle law's)
+N_LAW = 17
 FRICTION_SMOOTHED, FRICTION_BRISTLE = 0, 1
+# pin-joint friction columns (jf) past E, F1, F2, w_t: the Dahl law (J_LAW 1) with
+# normalised stiffness J_SIG0 (1/rad: the torque is E sig0 z) and damping J_SIG1 (s/rad)
+J_LAW, J_SIG0, J_SIG1 = 4, 5, 6
+N_JF = 7
 # normal-law types (L_TYPE): the thesis's Hunt-Crossley fit; rate-independent hysteresis
 # (L_P1 = loading/unloading ratio h, L_P2 = velocity scale); in series with a massless
 # spring of stiffness L_P1 (a compliant string)
@@ -174,7 +189,7 @@ def beam_section(xi, q, qd, sp, k, org, phi, w, vO, JO, Jp, aO, al, cs, ch, sh, 
         cs[k, 1] = math.sin(phi[k])
     dslope = 2.0 * xi * qd[QV1] + 3.0 * xi2 * qd[QV2]
     w[k] = wh + sg * dslope
-    for j in range(QH, NQ):
+    for j in range(QH, QV2 + 1):
         JO[k, 0, j] = 0.0
         JO[k, 1, j] = 0.0
         Jp[k, j] = 0.0
@@ -439,19 +454,24 @@ def normal_force_law(pen, pen_rate, law):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen, forces=True):
+def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, q, qd, ztau, zopen,
+             forces=True):
     """Add every contact's normal and friction force to Q; fill cout per contact.
 
     With ``full`` false, separated contacts get only their penetration (the
     integrator's fast path); with ``full`` true every output column is filled.
     With ``forces`` false Q is left alone (sampled outputs need no dynamics).
-    zb, zbd: the bristle deflection and its rate; returns the bristle law's dz/dt (the
-    bristles recover within ``zopen`` while their contact is open) and whether the
-    bristle contact carries load.
+    q, qd: the coordinates and their rates, for the bristle deflections (a contact with a
+    bristle law has its own, coordinate cl[i, L_ZSLOT]). With ``forces`` each bristle's
+    equation goes into Q too: its rate relaxes to the law's dz/dt within ``ztau`` while
+    its contact carries load, and the bristles recover within ``zopen`` while it is open
+    (which keeps the stiff -1/ztau out of the Jacobian there, so explicit steps stay
+    possible).
     """
-    zrate = -zb / zopen if zopen > 0.0 else 0.0
-    zload = False
     for i in range(cl.shape[0]):
+        zs = int(cl[i, L_ZSLOT])
+        if zs > 0 and forces:  # the open contact's bristles recover (overwritten if loaded)
+            Q[zs] = (-q[zs] / zopen - qd[zs]) / zopen
         if cl[i, L_ON] < 0.5:
             for j in range(N_CONTACT_OUT):
                 cout[i, j] = 0.0
@@ -476,8 +496,11 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen,
         ft = 0.0
         if fn > 0.0 and cl[i, L_FLAW] == FRICTION_BRISTLE:
             vt = cl[i, L_VT]
-            zrate = bristle_rate(slip, zb, cl[i, L_MU_A], cl[i, L_MU_S], vt, cl[i, L_SIG0])
-            zload = True
+            zb = q[zs]
+            zbd = qd[zs]
+            if forces:
+                Q[zs] = (bristle_rate(slip, zb, cl[i, L_MU_A], cl[i, L_MU_S], vt, cl[i, L_SIG0])
+                         - zbd) / ztau
             # bristle damping only near sticking (else it would add viscous friction)
             r = slip / vt
             ft = -fn * (cl[i, L_SIG0] * zb + cl[i, L_SIG1] * math.exp(-r * r) * zbd)
@@ -495,7 +518,6 @@ def contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, zb, zbd, zopen,
         cout[i, O_SLIP] = slip
         cout[i, O_PX] = px
         cout[i, O_PY] = py
-    return zrate, zload
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -555,6 +577,26 @@ def _solve(M, b, x, lo, n):
         for k in range(r + 1, n):
             acc -= M[r, k] * x[k]
         x[r] = acc / M[r, r]
+
+
+@njit(cache=True, error_model="numpy")
+def n_extra_bristles(cl, jf):
+    """How many of the Dahl option's bristle coordinates (10-17) move in this model."""
+    n = 0
+    for i in range(cl.shape[0]):
+        if cl[i, L_ZSLOT] > QZ + 0.5:
+            n += 1
+    for j in range(jf.shape[0]):
+        if jf[j, J_LAW] > 0.5:
+            n += 1
+    return n
+
+
+def bristle_coords(cl: np.ndarray, jf: np.ndarray) -> list[int]:
+    """The Dahl option's bristle coordinates (10-17) that move in this model."""
+    out = [int(z) for z in cl[:, L_ZSLOT] if z > QZ + 0.5]
+    out += [QZ_PIN + j for j in range(jf.shape[0]) if jf[j, J_LAW] > 0.5]
+    return sorted(out)
 
 
 class Model(NamedTuple):
@@ -656,7 +698,9 @@ def _inertia(q, qd, g, model, ws):
     kinematics(q, qd, sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
     for a in range(NQ):
         Q[a] = 0.0
-        for b in range(NQ):
+    # the bristles' rows are set whole by accelerations: only the mechanism's to clear
+    for a in range(QZ):
+        for b in range(QZ):
             M[a, b] = 0.0
     # rigid mass elements: frame, m, I, cx, cy
     for e in range(me.shape[0]):
@@ -687,12 +731,22 @@ def accelerations(t, y, f_key, model, ws, full):
         Q[QV1] -= ej * (4.0 * ln * v1 + 6.0 * ln * ln * v2)
         Q[QV2] -= ej * (6.0 * ln * ln * v1 + 12.0 * ln * ln * ln * v2)
     # contacts
-    zrate, zload = contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, q[QZ], qd[QZ],
-                            sp[S_ZOPEN])
+    contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, full, q, qd, sp[S_ZTAU], sp[S_ZOPEN])
     # pin-joint friction and springs
     for jn in range(6):
         c = JOINT_COORD[jn]
-        Q[c] -= joint_torque(qd[c], jf[jn, 0], jf[jn, 1], jf[jn, 2], jf[jn, 3])
+        if jf[jn, J_LAW] > 0.5:
+            # Dahl's law: the torque E sig0 z of the pin's bristles, deflected by the
+            # pin's turning; they hold any torque below E without turning on, and slide
+            # at E (dz/dt = w - |w| sig0 z); damped near sticking only
+            zs = QZ_PIN + jn
+            wj = qd[c]
+            r = wj / jf[jn, 3]
+            Q[c] -= jf[jn, 0] * (jf[jn, J_SIG0] * q[zs] + jf[jn, J_SIG1] * math.exp(-r * r)
+                                 * qd[zs])
+            Q[zs] = (wj - abs(wj) * jf[jn, J_SIG0] * q[zs] - qd[zs]) / sp[S_ZTAU]
+        else:
+            Q[c] -= joint_torque(qd[c], jf[jn, 0], jf[jn, 1], jf[jn, 2], jf[jn, 3])
     Q[QJ] += sp[S_JACK_T]
     Q[QR] -= sp[S_REP_K] * (q[QR] - sp[S_REP_TH0])
     # finger / motor force on the key top, straight down
@@ -723,17 +777,14 @@ def accelerations(t, y, f_key, model, ws, full):
             M[c, QU1] = 0.0
         M[QU1, QU1] = 1.0
         Q[QU1] = 0.0
-    # the bristle deflection: its rate relaxes to the law's within S_ZTAU under load, and
-    # as slowly as the bristles recover while the contact is open (which keeps the stiff
-    # -1/S_ZTAU out of the Jacobian there, so explicit steps stay possible); frozen
-    # without the law
-    M[QZ, QZ] = 1.0
-    if sp[S_BRISTLE] > 0.5:
-        Q[QZ] = (zrate - qd[QZ]) / (sp[S_ZTAU] if zload else sp[S_ZOPEN])
-    else:
-        Q[QZ] = 0.0
-    for blk in range(4):
+    # the bristle deflections: unit mass, each its own block, their equations set in Q
+    # above (by contacts and the pins' loop); the first contact's is frozen (Q 0) without a
+    # bristle law, and so are the others without theirs (no law writes their Q)
+    for blk in range(3):
         _solve(M, Q, qdd, BLOCKS[blk][0], BLOCKS[blk][1])
+    for c in range(QZ, NQ):
+        M[c, c] = 1.0
+        qdd[c] = Q[c]
     if oneway:
         # u1's own equation, M_uu u1'' + EA L (u1 + beta u1') = Q_u - sum_j M_uj qdd_j, with
         # the rigid mechanism's accelerations: a linear oscillator driven by the quasi-static
@@ -771,8 +822,8 @@ def sample_outputs(model, ws, Y, F, head_pt, gauge, out, cout_all):
     for r in range(Y.shape[0]):
         y = Y[r]
         kinematics(y[:NQ], y[NQ : 2 * NQ], sp, sec_xi, org, phi, w, vO, JO, Jp, aO, al, cs)
-        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True, y[QZ], y[NQ + QZ],
-                 sp[S_ZOPEN], False)
+        contacts(cf, cl, org, phi, cs, w, vO, JO, Jp, Q, cout, True, y[:NQ], y[NQ : 2 * NQ],
+                 sp[S_ZTAU], sp[S_ZOPEN], False)
         for i in range(cout.shape[0]):
             for j in range(N_CONTACT_OUT):
                 cout_all[j, r, i] = cout[i, j]
@@ -803,8 +854,8 @@ def energy(y, model, ws):
     qd = y[NQ : 2 * NQ]
     _inertia(q, qd, 0.0, model, ws)
     kin = 0.0
-    for a in range(NQ):
-        for b in range(NQ):
+    for a in range(NQ_MECH):
+        for b in range(NQ_MECH):
             kin += 0.5 * qd[a] * M[a, b] * qd[b]
     g = sp[S_G]
     pot = 0.0

@@ -156,7 +156,7 @@ class _Statics:
         self.model = model
         self.ws = model.workspace()
         self.extra = model.extra_force()
-        self.coords = np.array([i for i in np.flatnonzero(model.active) if i != k.QZ])
+        self.coords = np.array([i for i in np.flatnonzero(model.active) if i < k.QZ])
         # each coordinate's size in the integrator's terms (the shank's bending coordinates
         # are 1e3-1e4 times an angle's): the solver's variable scaling, the residual's units
         self.scale = model.atol[self.coords] / model.atol[k.QK]
@@ -207,6 +207,10 @@ class _Statics:
             cl[:, k.L_VT] = SLIP_TOL_M * widen / STEP_S
             jf[:, 1] = 0.0
             jf[:, 3] = TURN_TOL_RAD * widen / STEP_S
+        # the bristle laws (the back check's, the Dahl option's) are taken as Coulomb's too:
+        # no bristle coordinate
+        cl[:, k.L_ZSLOT] = 0.0
+        jf[:, k.J_LAW] = 0.0
         a.sp[k.S_BRISTLE] = 0.0
         return a
 

@@ -8,7 +8,8 @@ from __future__ import annotations
 from rig.model import kernel as k
 
 COORDINATES = ("theta_k", "y_k", "theta_w", "theta_j", "theta_r", "theta_h", "u1", "v1", "v2",
-               "z_b")
+               "z_b", "z_key", "z_whippen", "z_jack", "z_repetition", "z_hammer", "z_c2",
+               "z_c3", "z_c4")  # z_*: bristle deflections (the pins', further contacts')
 ANGLE_CHANNELS = {
     "key_angle": k.QK,
     "whippen_angle": k.QW,

@@ -18,10 +18,27 @@ import numpy as np
 from rig.errors import InputError
 from rig.inputs.config import RigConfig
 from rig.model.action import ActionModel
+from rig.model.assembly import JOINTS
+from rig.inputs.params import Parameters
 from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.sensors import SensorSet
+
+
+def sim_parameters(config: RigConfig) -> Parameters:
+    """The simulated action's parameters: the shipped model's, with ``sim.friction: stick``
+    Dahl's law at every pin and at every contact with friction but the back check (whose
+    bristle law already sticks)."""
+    params = Parameters.default()
+    if config.sim.friction == "stick":
+        for c in params.tree["contacts"]:
+            cid = int(c["id"])
+            if c["A"] > 0 and params.tree["friction_law"]["contact"].get(cid) != "bristle":
+                params.set(f"friction_law.contact.{cid}", "dahl")
+        for pin in JOINTS:
+            params.set(f"friction_law.joint.{pin}", "dahl")
+    return params
 
 
 class SimRig:
@@ -34,7 +51,8 @@ class SimRig:
         rate = config.rates.acquisition_hz
         self.n_per_cycle = config.rates.samples_per_cycle
         self.dt_sample = 1.0 / rate
-        self.model = model or ActionModel(effects=config.sim.effects, output_rate=rate)
+        self.model = model or ActionModel(sim_parameters(config), effects=config.sim.effects,
+                                          output_rate=rate)
         if abs(self.model.output_rate - rate) > 1e-9:
             raise InputError(f"model: expected output_rate {rate} Hz, got {self.model.output_rate}")
         self.table = sensor_table.sensors(config)
