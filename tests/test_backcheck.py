@@ -165,7 +165,7 @@ def test_the_bristle_coordinate_moves_only_with_the_law() -> None:
 
 @pytest.mark.parametrize("override, field", [
     ({4: "sticky"}, "friction_law.contact.4"),
-    ({4: "bristle", 7: "bristle"}, "friction_law.contact"),
+    ({7: "stick"}, "friction_law.contact.7"),
 ])
 def test_a_bad_friction_law_is_refused_naming_the_field(override, field) -> None:
     p = Parameters.default().update({"friction_law": {"contact": override}})
@@ -174,3 +174,10 @@ def test_a_bad_friction_law_is_refused_naming_the_field(override, field) -> None
     p = Parameters.default().set("friction_law.bristle.presliding", 0.0)
     with pytest.raises(InputError, match=r"friction_law\.bristle\.presliding"):
         ActionModel(p)
+
+
+def test_a_second_bristle_contact_gets_its_own_coordinate() -> None:
+    """Every contact with friction may take a bristle law (the back check keeps z_b)."""
+    p = Parameters.default().update({"friction_law": {"contact": {7: "bristle"}}})
+    model = ActionModel(p)
+    assert [c for c in model.coordinates if c.startswith("z_")] == ["z_b", "z_c2"]

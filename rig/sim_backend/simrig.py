@@ -17,9 +17,9 @@ import numpy as np
 
 from rig.errors import InputError
 from rig.inputs.config import RigConfig
+from rig.inputs.params import Parameters
 from rig.model.action import ActionModel
 from rig.model.assembly import JOINTS
-from rig.inputs.params import Parameters
 from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveModel
 from rig.sim_backend.drive_state import DriveState, DriveStatus
