@@ -20,7 +20,8 @@ PINS = ("key", "whippen", "jack", "repetition", "hammer")
 
 
 def _rig(friction: str) -> config.RigConfig:
-    return config.from_mapping({"backend": "sim", "sim": {"effects": [], "friction": friction}})
+    return config.from_mapping({"backend": "sim", "sim": {"effects": [], "friction": friction},
+                                "channels": {"strain_gauge": {"enabled": False}}})
 
 
 def _hold(model: ActionModel, grams: float) -> np.ndarray:
@@ -91,3 +92,10 @@ def test_bad_friction_laws_are_refused_in_one_line() -> None:
     with pytest.raises(InputError, match=r"sim\.friction"):
         _rig("sticky")
     assert k.NQ == 18 and len(k.QZ_CONTACT) == 4
+
+
+def test_the_simulated_rig_builds_its_action_with_the_setting() -> None:
+    from rig.sim_backend.simrig import SimRig
+
+    assert "z_key" in SimRig(_rig("stick")).model.coordinates
+    assert "z_key" not in SimRig(_rig("regularised")).model.coordinates
