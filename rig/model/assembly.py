@@ -196,10 +196,10 @@ def pack(params: Parameters, *, liftoff: bool = False, flexible_shank: bool = Fa
                          f"coordinates), got {n_bristle}")
     # the bristle law's contact (the back check's) keeps the first coordinate, z_b; the
     # Dahl option's contacts take the others
-    order = sorted(np.flatnonzero(bristle_on),
-                   key=lambda i: laws.get(ids[i], "smoothed") != "bristle")
-    for slot, i in zip(k.QZ_CONTACT, order, strict=False):
-        cl[i, k.L_ZSLOT] = slot
+    order = sorted((int(c) for c in np.flatnonzero(bristle_on)),
+                   key=lambda c: laws.get(ids[c], "smoothed") != "bristle")
+    for slot, c in zip(k.QZ_CONTACT, order, strict=False):
+        cl[c, k.L_ZSLOT] = slot
     sp[k.S_BRISTLE] = 1.0 if n_bristle else 0.0
 
     jf = np.zeros((6, k.N_JF))
