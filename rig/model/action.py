@@ -265,7 +265,7 @@ class ActionModel:
 
     # -- rest state ------------------------------------------------------------------
     def rest_state(self) -> np.ndarray:
-        """Static equilibrium under gravity with zero key force (state vector, 18)."""
+        """Static equilibrium under gravity with zero key force (state vector, kernel.NY)."""
         if self._rest is None and self.equations_key in _REST_CACHE:
             self._rest = _REST_CACHE[self.equations_key].copy()
         if self._rest is None:

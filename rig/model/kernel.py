@@ -1,6 +1,6 @@
 """Compiled equations of motion of the planar grand-piano action.
 
-Generalized coordinates (always 10; those of effects that are off stay frozen):
+Generalized coordinates (always 18; those of effects and laws that are off stay frozen):
 
     0 theta_k  key, ground -> key frame (rad)
     1 y_k      key pivot lift along the prismatic joint (m)      [key_liftoff]
@@ -22,8 +22,8 @@ Coordinates 10-17 exist for the Dahl friction option (``friction_law.joint`` and
 docs/touch.md); off, they are frozen at zero and the model is as before.
 
 The mass matrix is block diagonal (key | whippen, jack, repetition | hammer and
-shank | bristle); each block is assembled and solved on its own. State y = [q (10),
-qdot (10)].
+shank | each bristle); each block is assembled and solved on its own. State y = [q (18),
+qdot (18)].
 
 The bristle deflection z_b follows a first-order law, dz/dt = r(slip, z) (LuGre,
 normalised by the normal force, see ``bristle_rate``). It is carried as a coordinate
