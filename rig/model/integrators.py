@@ -385,22 +385,41 @@ class ScipyIntegrator:
         dy = np.empty_like(y0)
         counter = [0]
         qx = ws.qx
+        # the Dahl option's bristle coordinates that do not move are left out of the solver's
+        # state (they stay as y0 has them), so its error norm and steps are as before they
+        # existed
+        keep = _solver_states(model, y0.shape[0])
+        full = np.array(y0, dtype=float, copy=True)
 
-        def fun(t: float, y: np.ndarray) -> np.ndarray:
+        def fun(t: float, yr: np.ndarray) -> np.ndarray:
             counter[0] += 1
+            full[keep] = yr
             if extra_force is not None:
-                qx[:], dz = extra_force(t, y)
+                qx[:], dz = extra_force(t, full)
                 dy[k.NY :] = dz
-            k.rhs(t, y, force_at(t, force_t, force_f, hint), model, ws, dy)
-            return dy.copy()
+            k.rhs(t, full, force_at(t, force_t, force_f, hint), model, ws, dy)
+            return dy[keep]
 
         from scipy.integrate import solve_ivp  # (lazy: only reference runs use it)
 
-        sol = solve_ivp(fun, (t0, t1), y0, method=self.method, rtol=self.rtol, atol=atol,
-                        max_step=self.max_step, dense_output=True, first_step=min(step, t1 - t0))
+        sol = solve_ivp(fun, (t0, t1), y0[keep], method=self.method, rtol=self.rtol,
+                        atol=atol[keep], max_step=self.max_step, dense_output=True,
+                        first_step=min(step, t1 - t0))
         qx[:] = 0.0
         status = STATUS_OK if sol.success else STATUS_STEP_TOO_SMALL
         out_t = out_t[(out_t >= t0) & (out_t <= t1)]
-        out = sol.sol(out_t).T if out_t.size else np.empty((0, y0.shape[0]))
-        return Advance(sol.y[:, -1].copy(), out, step, int(sol.t.size - 1), 0, counter[0],
-                       status)
+        out = np.repeat(np.asarray(y0, dtype=float)[None, :], out_t.size, axis=0)
+        if out_t.size:
+            out[:, keep] = sol.sol(out_t).T
+        y1 = np.array(y0, dtype=float, copy=True)
+        y1[keep] = sol.y[:, -1]
+        return Advance(y1, out, step, int(sol.t.size - 1), 0, counter[0], status)
+
+
+def _solver_states(model: k.Model, n: int) -> np.ndarray:
+    """The state's components a solver steps: all but the frozen bristle coordinates of the
+    Dahl option (and their rates)."""
+    moving = set(k.bristle_coords(model.cl, model.jf))
+    frozen = [c for c in range(k.QZ + 1, k.NQ) if c not in moving]
+    drop = set(frozen) | {k.NQ + c for c in frozen}
+    return np.array([i for i in range(n) if i not in drop], dtype=np.int64)
