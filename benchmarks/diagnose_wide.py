@@ -381,7 +381,7 @@ def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float 
     return 1.0 - float(np.mean(r_written ** 2) / np.mean(r_base ** 2)), p
 
 
-def run_seed(seed: int, jobs: int | None, weights: str = "none"
+def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = False
              ) -> tuple[Draw, Score, list[str]]:
     """Synthesize, diagnose, write and check one seed."""
     from rig.analysis import diagnose as dg
@@ -395,7 +395,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none"
         synth_run(d, d.held_out, held, seed + 100_000)
         meas = ms.load(run)
         t0 = time.perf_counter()
-        diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=jobs, weights=weights)
+        diag = dg.diagnose(ActionModel(), meas, duration=d.window, jobs=jobs, weights=weights,
+                           base_params=base)
         seconds = time.perf_counter() - t0
         final = diag.final
         s = score(d, diag.chosen_names, final.values if final else {},
@@ -474,6 +475,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--weights", choices=("none", "noise"), default="none",
                     help="diagnose's sample weights (docs/workflow.md; default: diagnose's)")
+    ap.add_argument("--base", action="store_true",
+                    help="base-parameter candidates beside the effects (diagnose's "
+                         "base_params; rig diagnose --base)")
     ap.add_argument("--jobs", type=int, default=None,
                     help="processes per diagnose (its candidates' fits)")
     ap.add_argument("--json", type=Path, default=None, help="write seeds and summary here")
@@ -500,7 +504,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if args.draws_only:
             continue
         try:
-            _, s, notes = run_seed(seed, args.jobs, args.weights)
+            _, s, notes = run_seed(seed, args.jobs, args.weights, args.base)
         except RuntimeError as e:  # the truth's simulation failed: no run to diagnose
             print(f"  skipped: {e}", flush=True)
             records.append({"draw": asdict(d), "score": None, "error": str(e)})

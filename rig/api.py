@@ -90,7 +90,7 @@ def simulate(profile: str | Path, *, model: str | Path | None = None,
 def diagnose(run: str | Path, *, model: str | Path | None = None, **options: Any) -> Any:
     """Which effects the model misses in the run (rig.analysis.diagnose.Diagnosis); options
     as ``rig diagnose``'s: input, duration, trials, channels, candidates, extra, jobs,
-    single, backward, scheduler, write, report_path."""
+    single, backward, base_params, scheduler, write, report_path."""
     from rig.services import diagnose as svc
 
     return svc.diagnose(Path(run), Path(model) if model else None, **options)

@@ -91,7 +91,10 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
     name, _, bounds = spec.partition("=")
     name = name.strip()
     effects = {e.name: e for e in (*model.effects, *extra)}
-    head, _, rest = name.partition(".")
+    # an effect's name may hold dots (a base-parameter candidate, ``base:bodies.key.mass``)
+    head, _, rest = next(((e, "", name[len(e) + 1:]) for e in sorted(effects, key=len,
+                                                                     reverse=True)
+                          if name.startswith(e + ".")), name.partition("."))
     if head in effects and rest:
         eff = effects[head]
         specs = {p.name: p for p in eff.parameters}

@@ -484,6 +484,9 @@ def diagnose_cmd(
     backward: Annotated[bool, typer.Option(
         "--backward", help="after the joint search, check each chosen effect is needed")
     ] = False,
+    base: Annotated[bool, typer.Option(
+        "--base", help="also try base parameters off by a factor (masses, inertias, felts, "
+                       "springs, friction; docs/workflow.md)")] = False,
     write: Annotated[Path | None, typer.Option(
         help="save the model with the chosen effects and their fitted values here")] = None,
     report: Annotated[Path | None, typer.Option(help="write an HTML report here")] = None,
@@ -504,7 +507,8 @@ def diagnose_cmd(
             task = bar.add_task("fitting candidate effects", total=None, sim="")
             diag = svc.diagnose(run, model, input=input, duration=duration, trials=trial,
                                 channels=channel, candidates=candidate, extra=extra or (),
-                                jobs=jobs, single=single, backward=backward, write=write,
+                                jobs=jobs, single=single, backward=backward,
+                                base_params=base, write=write,
                                 report_path=report, scheduler=scheduler,
                                 progress=_analysis_progress(bar, task))
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors

@@ -10,6 +10,7 @@ from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import report
+from rig.model import base_params as bp
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN, Effect, make
 
@@ -18,7 +19,7 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
              duration: float | None = None, trials: Sequence[int] | None = None,
              channels: Sequence[str] | None = None, candidates: Sequence[str] | None = None,
              extra: Sequence[str] = (), jobs: int | None = None, single: bool = False,
-             backward: bool = False, scheduler: str | None = None,
+             backward: bool = False, base_params: bool = False, scheduler: str | None = None,
              write: Path | None = None, report_path: Path | None = None,
              progress: Callable[[float, float, str], None] | None = None) -> dg.Diagnosis:
     """Diagnose the model (the rigid base model if none) against the run's trials; the
@@ -39,7 +40,7 @@ def diagnose(run: Path, model_file: Path | None, *, input: str = "force",
         diag = dg.diagnose(model, meas, input=input, duration=duration, channels=channels,
                            candidates=candidates, extra=extra_classes, jobs=jobs,
                            label=label, single=single, backward=backward, executor=ex,
-                           progress=progress)
+                           progress=progress, base_params=base_params)
     diag.refs = refs
     if write is not None and diag.best is not None:  # nothing to write without a winner
         dg.write_model(model_file, diag, write)
@@ -56,7 +57,7 @@ def winner_model(diag: dg.Diagnosis, base: ActionModel, rate: float,
     final = diag.final
     if final is None:
         return None
-    classes = {**BUILTIN, **{c.name: c for c in extra}}
+    classes = {**BUILTIN, **bp.CANDIDATES, **{c.name: c for c in extra}}
     effects = []
     for name in diag.chosen_names:
         pre = name + "."

@@ -15,10 +15,35 @@ from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.errors import InputError
+from rig.model import base_params as bp
 
 
 def _unit(u: str) -> str:
     return "" if u in ("", "1") else u
+
+
+def base_text(name: str, values: Mapping[str, float], sigma: Mapping[str, float]) -> str:
+    """A base-parameter candidate's claim: ``base: hammer head mass x1.06 +- 0.02``."""
+    key = f"{name}.scale"
+    v = float(values.get(key, math.nan))
+    return (f"base: {bp.CANDIDATES[name].group.text} "
+            f"x{stats.fmt(v, sigma.get(key, math.nan))}")
+
+
+def base_claims(names: Sequence[str], values: Mapping[str, float],
+                sigma: Mapping[str, float]) -> list[dict[str, Any]]:
+    """The base-parameter claims among ``names`` as plain data (``--json``): the name, the
+    report's text, the paths scaled, the scale and its standard error."""
+    out = []
+    for n in names:
+        if not bp.is_base(n):
+            continue
+        g = bp.CANDIDATES[n].group
+        key = f"{n}.scale"
+        out.append({"name": n, "text": g.text, "paths": list(g.paths),
+                    "scale": float(values.get(key, math.nan)),
+                    "sigma": float(sigma.get(key, math.nan))})
+    return out
 
 
 @dataclass
@@ -59,7 +84,9 @@ class Candidate:
                 "channel_removal": dict(self.channel_removal), "train_gain": self.train_gain,
                 "p_value": self.p_value, "significant": self.significant,
                 "why_not": self.why_not, "note": self.note, "error": self.error,
-                "correlations": [{"a": a, "b": b, "r": r} for (a, b), r in self.corr.items()]}
+                "correlations": [{"a": a, "b": b, "r": r} for (a, b), r in self.corr.items()],
+                "base": base_claims(list(self.effects or (self.name,)), self.values,
+                                    self.sigma)}
 
     def own(self) -> dict[str, float]:
         """This candidate's own fitted values (``param: value``)."""
@@ -68,6 +95,8 @@ class Candidate:
             if any(k.startswith(pre) for k in self.values) else dict(self.values)
 
     def value_text(self, only_own: bool = True) -> str:
+        if only_own and bp.is_base(self.name):
+            return base_text(self.name, self.values, self.sigma)
         pre = self.name + "."
         items = [(k, v) for k, v in self.values.items()
                  if not only_own or k.startswith(pre) or "." not in k]
@@ -121,6 +150,19 @@ def rank(candidates: list[Candidate], implies: Mapping[str, Sequence[str]],
             ia, ib = out.index(a), out.index(b)
             if (extra < min_gain or p > level) and ia < ib:
                 out.insert(ib, out.pop(ia))
+    # a base parameter's scale that ranks above the first significant library effect takes
+    # its place only when the held-out data show it better (one-sided p <= level): a few
+    # per cent off is what every real action's base parameters are, and a scale that
+    # mimics a missing effect must not take its credit on a share alone
+    eff = next((c for c in out if c.significant and not c.error and not bp.is_base(c.name)),
+               None)
+    if eff is not None:
+        for a in [c for c in out[:out.index(eff)] if bp.is_base(c.name) and not c.error]:
+            p = better(a, eff) if better is not None else 1.0
+            if p > level:
+                a.note = (f"ranked after {eff.name}: not better than it on the held-out data "
+                          f"(p = {p:.2g} > {level:.2g})")
+                out.insert(out.index(eff), out.pop(out.index(a)))
     return out
 
 
@@ -151,6 +193,8 @@ class Diagnosis:
         fit, each accepted step, the first round's ranking, the verdict."""
         f = self.final
         return {"chosen": self.chosen_names, "final": f.as_dict() if f is not None else None,
+                "base": (base_claims(self.chosen_names, f.values, f.sigma) if f is not None
+                         else []),
                 "steps": [c.as_dict() for c in self.chosen],
                 "candidates": [c.as_dict() for c in self.candidates],
                 "base_error": dict(self.base_error), "total_removal": self.total_removal(),
@@ -203,9 +247,15 @@ class Diagnosis:
         rem = self.remainder
         if f is not None:
             names = self.chosen_names
-            head = ("missing effect: " if len(names) == 1 else "missing effects (joint fit): ")
-            vals = "; ".join(f"{n}: " + (", ".join(
-                f"{k.split('.', 1)[1]} = "
+            n_base = sum(bp.is_base(n) for n in names)
+            head = ("missing effect: " if len(names) == 1 and not n_base else
+                    "base parameter off: " if len(names) == 1 else
+                    "missing effects (joint fit): " if not n_base else
+                    "base parameters off (joint fit): " if n_base == len(names) else
+                    "missing effects and base parameters off (joint fit): ")
+            vals = "; ".join(base_text(n, f.values, f.sigma) if bp.is_base(n) else
+                             f"{n}: " + (", ".join(
+                f"{k[len(n) + 1:]} = "
                 f"{stats.fmt(v, f.sigma.get(k, math.nan), f.units.get(k, ''))}"
                 for k, v in f.values.items() if k.startswith(n + ".")) or "no fitted parameter")
                 for n in names)
@@ -249,8 +299,8 @@ class Diagnosis:
         if not rem.significant:
             return f". What it leaves is within the noise floor ({rem.head()})"
         why = ("only one effect was asked for (single)" if self.single else
-               f"the search stops at {self.max_effects} effects" if len(self.chosen_names)
-               >= self.max_effects else
+               f"the search stops at {self.max_effects} effects" if sum(
+                   not bp.is_base(n) for n in self.chosen_names) >= self.max_effects else
                "no further library candidate removes a significant share of it")
         own = rem.acting()
         values = ("" if not own else
