@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/diagnose_wide.py --first-seed 0 --seeds 20 --jobs 1
     .venv/bin/python benchmarks/diagnose_wide.py --first-seed 5 --seeds 1 --json out.json
+    .venv/bin/python benchmarks/diagnose_wide.py --first-seed 5 --seeds 1 --base --jobs 1
 
 Seeds 0-999 are for development. Seeds 1000-1099 are RESERVED: run them only to report a
 method's figures (docs/performance.md), never to tune it; the script prints a warning
@@ -41,12 +42,12 @@ synthesized from the same truth with fresh noise and never seen by diagnose.
 Scoring (the issue's acceptance list):
 - exact: the chosen library effects equal the hidden ones (each side with what its
   effects imply: ``key_encoder_misread`` counts as ``key_liftoff`` too). Base-parameter
-  offsets are nuisance: they are not to be named while the library has no base-parameter
-  candidates (a few per cent off is what a real action is, and the task is to say which
-  EFFECTS are missing); a chosen name that is not a library effect is taken as a
-  base-parameter claim, right when a drawn offset's path appears in it (e.g.
-  ``hammer_head.mass`` in ``base:bodies.hammer_head.mass``) -- a right one does not break
-  ``exact``, a wrong one does;
+  offsets are nuisance: they need not be named (a few per cent off is what a real action
+  is, and the task is to say which EFFECTS are missing; diagnose proposes base-parameter
+  candidates only with ``--base``, off by default); a chosen name that is not a library
+  effect is taken as a base-parameter claim, right when a drawn offset's path appears in
+  it (e.g. ``hammer_head.mass`` in ``base:bodies.hammer_head.mass``) -- a right one does
+  not break ``exact``, a wrong one does;
 - top-1 (seeds with a hidden library effect): the first chosen name is hidden (an effect
   or a right base claim);
 - outside credit (seeds with a user effect): a library effect that is not hidden is chosen;

@@ -18,6 +18,15 @@ the final one: its values, uncertainties (HAC plus the input force's noise,
 ``single=True`` gives only the first round: each candidate alone against the
 model, ranked.
 
+With ``base_params=True`` (``rig diagnose --base``) the base-parameter candidates of
+rig.model.base_params (a short list of scale factors on masses, inertias, felt stiffness and
+damping, spring preloads and pivot friction, each named ``base:<path>``) enter the same
+search; one ranked above a significant library effect goes after it unless the held-out test
+shows it better (``rank``), one whose scale ends on its prior's bound is not significant
+(``judge``), a chosen one takes one of the ``max_effects`` places, and the final refit of a
+set holding one is taken without the whole-blow alignment. Off by default
+(docs/workflow.md, docs/performance.md).
+
 With ``weights="noise"`` every residual of the diagnosis (fits, scores, tests, the
 remainder) is weighed by a noise model of the data under the base model
 (``fit.noise_weights``: white output noise plus the model's response to the input force's

@@ -42,8 +42,6 @@ from rig.model.effects import Effect
 if TYPE_CHECKING:
     from rig.analysis.executor import Executor
 
-MAX_BASE = 2  # base-parameter candidates chosen at most (beside max_effects effects)
-
 
 def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
              duration: float | None = None, channels: Sequence[str] | None = None,
@@ -54,12 +52,11 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
              z_off: float = 1.96, backward: bool = False, held_out_test: str = "noise",
              final_nfev: int = 40, weights: str = "none", executor: Executor | None = None,
              progress: Callable[[float, float, str], None] | None = None,
-             base_params: bool = False, max_base: int = MAX_BASE) -> Diagnosis:
+             base_params: bool = False) -> Diagnosis:
     """Signatures of the base model's residual, each candidate alone, and (unless
     ``single``) the jointly fitted set of effects a forward selection chooses. With
     ``base_params`` the base-parameter candidates (rig.model.base_params) enter the search
-    beside the effects; at most ``max_base`` of them are chosen, and they do not count
-    toward ``max_effects``."""
+    beside the effects (a chosen one counts toward ``max_effects`` as an effect does)."""
     import time as _time
 
     if not measurements:
@@ -131,11 +128,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     from rig.analysis.executor import LocalExecutor
 
     ex = executor if executor is not None else LocalExecutor(jobs)
-    def n_effects() -> int:
-        return sum(not bp.is_base(c.name) for c in chosen)
-
     try:
-        while remaining and (len(chosen) < 1 if single else n_effects() < max_effects):
+        while remaining and len(chosen) < (1 if single else max_effects):
             out = _round(remaining, {**ctx, "state": state}, ex, progress,
                          "fitting candidates" if not chosen else
                          f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
@@ -169,8 +163,6 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             cls_b = by_name[best.name]
             remaining = [c for c in remaining if c is not cls_b
                          and c.name not in cls_b.implies]
-            if sum(bp.is_base(c.name) for c in chosen) >= max_base:
-                remaining = [c for c in remaining if not bp.is_base(c.name)]
             state = state_of(best)
     finally:
         if executor is None:

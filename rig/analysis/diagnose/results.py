@@ -299,8 +299,8 @@ class Diagnosis:
         if not rem.significant:
             return f". What it leaves is within the noise floor ({rem.head()})"
         why = ("only one effect was asked for (single)" if self.single else
-               f"the search stops at {self.max_effects} effects" if sum(
-                   not bp.is_base(n) for n in self.chosen_names) >= self.max_effects else
+               f"the search stops at {self.max_effects} effects" if len(self.chosen_names)
+               >= self.max_effects else
                "no further library candidate removes a significant share of it")
         own = rem.acting()
         values = ("" if not own else
