@@ -23,7 +23,7 @@ from rig.inputs import config, profiles
 from rig.inputs.config import RigConfig
 from rig.inputs.params import Parameters
 from rig.model.fingertip import constant_speed_force
-from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.drive_model import DriveResponse
 from rig.sim_backend.sensors import SensorSet
 
 FORTE = Path(__file__).resolve().parents[1] / "profiles" / "forte.yaml"
@@ -35,7 +35,7 @@ def recorded_force(demand_n: np.ndarray, cfg: RigConfig) -> tuple[np.ndarray, np
     held over each control period (the built-in rig's chain)."""
     rate = cfg.rates.acquisition_hz
     spc = cfg.rates.samples_per_cycle
-    drive = DriveModel(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
+    drive = DriveResponse(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
     force = np.concatenate([np.maximum(drive.step(float(u), spc), 0.0) for u in demand_n])
     quiet = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"load_cell_noise_n": 0.0})})
     lc = SensorSet.from_config(quiet)["load_cell"]

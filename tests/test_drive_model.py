@@ -16,7 +16,7 @@ from scipy import signal
 
 from rig.inputs import config, profiles
 from rig.inputs.params import Parameters
-from rig.sim_backend.drive_model import VARIANTS, DriveModel, ramp_lag_s
+from rig.sim_backend.drive_model import VARIANTS, DriveResponse, ramp_lag_s
 from rig.sim_backend.simrig import SimRig
 
 DT = 0.0005           # the acquisition step (2 kHz)
@@ -28,7 +28,7 @@ SINGLE = Parameters.default().get("actuator.process_model_all")
 
 def drive(variant: str, demand: np.ndarray) -> np.ndarray:
     """The force at each 0.5 ms sample for a demand held over each 2 ms period."""
-    m = DriveModel(DT, variant)
+    m = DriveResponse(DT, variant)
     return np.concatenate([m.step(float(u), SPC) for u in demand])
 
 
@@ -111,7 +111,7 @@ def test_variants_are_selectable_and_differ_where_documented() -> None:
     assert t[np.argmax(l30 >= half)] > t[np.argmax(s30 >= half)] + 0.002
     assert l30[-1] == pytest.approx(s30[-1], rel=1e-3)       # same static gain
     with pytest.raises(ValueError, match="variant"):
-        DriveModel(DT, "rise_fall")
+        DriveResponse(DT, "rise_fall")
 
 
 @pytest.mark.parametrize("variant", VARIANTS)

@@ -179,14 +179,14 @@ def test_timing_spread_matches_the_simulated_drive_with_late_writes():
     # 2 kHz simulated drive (rig.sim_backend) whose writes come 0, 0.5 or 1 ms late, the
     # force read at the nominal ticks: the spread of 400 draws at each cycle
     from rig.control import bound, plant
-    from rig.sim_backend.drive_model import DriveModel
+    from rig.sim_backend.drive_model import DriveResponse
 
     d = 1.5 * _bell(80, 40)        # steps up to 3.1 N per cycle
     n, spc = d.size, 4
     rng = np.random.default_rng(7)
     runs = []
     for _ in range(400):
-        drive = DriveModel(1.0 / 2000.0, "single")
+        drive = DriveResponse(1.0 / 2000.0, "single")
         late = rng.integers(0, 3, size=n)
         f = np.zeros(n * spc + 1)
         last = 0.0

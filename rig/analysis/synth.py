@@ -30,7 +30,7 @@ from rig.inputs.config import RigConfig
 from rig.model.action import ActionModel, SimResult
 from rig.recordings import runfile
 from rig.sensors import table as sensor_table
-from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.drive_model import DriveResponse
 from rig.sim_backend.sensors import SensorSet
 
 COMMAND_UNITS = {k: sensor_table.COMMAND_UNITS[k] for k in ("time", "demand")}
@@ -80,7 +80,7 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
     rate = cfg.rates.acquisition_hz
     n_per = cfg.rates.samples_per_cycle
     tc, dem = demand(profile, cfg, dur)
-    drive = DriveModel(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s,
+    drive = DriveResponse(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s,
                        truth.params)
     force = np.concatenate([[0.0]] + [np.maximum(drive.step(float(u), n_per), 0.0)
                                       for u in dem])

@@ -114,10 +114,9 @@ def newest_valid(folder: Path, sensor: str, cfg: RigConfig) -> tuple[dict[str, A
         except ValueError as exc:
             warnings.warn(f"skipping {exc}", InvalidRecordWarning, stacklevel=2)
             continue
-        if rec["sensor"] != sensor or rec["rig"].get("backend") != want["backend"]:
-            continue
-        if want["backend"] == "sim" and rec["rig"].get("sim_seed") != want.get("sim_seed"):
-            continue
+        if rec["sensor"] != sensor or any(rec["rig"].get(k) != v for k, v in want.items()
+                                          if k != "name"):
+            continue  # another backend, or another simulated rig (its seed)
         if best is None or rec["created"] > best[0]:
             best = (rec["created"], rec, path)
     return None if best is None else (best[1], best[2])
@@ -170,14 +169,14 @@ def records_for_run(cfg: RigConfig, now: _dt.datetime | None = None) -> dict[str
                           f"(calibration.max_age_days is {settings.max_age_days:g}): "
                           f"recalibrate soon", CalibrationAgeWarning, stacklevel=2)
         cals[sensor] = to_calrecord(rec, path)
-    if missing and cfg.backend != "sim" and not settings.use_raw_units:
+    if missing and not cfg.simulated and not settings.use_raw_units:
         cmds = ", ".join(f"`rig calibrate {'loadcell' if s == 'load_cell' else 'strain'}`"
                          if s in ("load_cell", "strain_gauge") else f"`rig calibrate {s}`"
                          for s in missing)
         raise MissingCalibration(
             f"calibration: no valid record for {', '.join(missing)} in {folder}: run {cmds} "
             f"first, or set calibration.use_raw_units: true to run with data-sheet values")
-    if missing and cfg.backend != "sim":
+    if missing and not cfg.simulated:
         for s in missing:
             if s not in cals:  # motor: no data-sheet record; the run leads by loop.advance_s
                 continue

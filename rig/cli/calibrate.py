@@ -115,7 +115,7 @@ def calibrate_strain(
     from rig.services import calibrate as svc
 
     cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
+    if not cfg.simulated:
         typer.confirm("Is the hammer shank at rest and untouched?", default=True, abort=True)
     try:
         result, path = svc.calibrate_strain(cfg, operator=operator, identifier=serial,
@@ -139,7 +139,7 @@ def calibrate_motor(
     from rig.services import calibrate as svc
 
     cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
+    if not cfg.simulated:
         typer.confirm("Is the arm pressing the static surface (key blocked), drive enabled?",
                       default=False, abort=True)
     try:
@@ -159,7 +159,7 @@ def check_encoders(rig: _RigOpt = None, operator: _OperatorOpt = None,
     from rig.services import calibrate as svc
 
     cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
+    if not cfg.simulated:
         typer.confirm("Press the key slowly to the bottom and back while the check runs "
                       "(about 4 s). Ready?", default=True, abort=True)
     try:

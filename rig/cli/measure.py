@@ -52,7 +52,7 @@ def measure_touch(
             raise _fail(exc) from None
     else:
         cfg = _rig_for_calibration(rig)
-    if cfg.backend != "sim":
+    if not cfg.simulated:
         typer.confirm("Is the arm on the key top, the key free, the drive ready?",
                       default=False, abort=True)
     try:

@@ -2,7 +2,7 @@
 
 The drive is a force source (the simulated key feels ``max(drive output, 0)``
 whatever the action does), so the loop's tracking can be studied offline from
-``rig.sim_backend.drive_model.DriveModel`` and the load cell's noise alone, in
+``rig.sim_backend.drive_model.DriveResponse`` and the load cell's noise alone, in
 milliseconds instead of a real-time run: what tests and ``benchmarks/tracking.py``
 use. Timing as in ``rig run``: at tick j (t_j = j / control_hz) the loop reads the
 load cell's latest sample, then writes demand u_j, held until the next tick.
@@ -18,7 +18,7 @@ import numpy as np
 
 from rig.inputs.config import Limits
 from rig.motor_torque import Limiter
-from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.drive_model import DriveResponse
 
 
 @dataclass
@@ -38,7 +38,7 @@ def play(u: np.ndarray, *, variant: str = "single", control_hz: float = 500.0,
     """Play feedforward table ``u`` (N per tick) once; ``controller`` as in rig run's loop."""
     rng = rng or np.random.default_rng(0)
     spc = int(round(sample_hz / control_hz))
-    drive = DriveModel(1.0 / sample_hz, variant)
+    drive = DriveResponse(1.0 / sample_hz, variant)
     lim = Limiter(limits or Limits(), 1.0 / control_hz)
     n = len(u)
     tail = spc * 4

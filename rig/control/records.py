@@ -64,7 +64,7 @@ def build(cfg: RigConfig, profile: profiles.Profile, calibration_records: list[d
         "profile": {"name": profile.name, "source": str(profile.source),
                     "content_hash": profile_hash(profile)},
         "rig": rig_identity(cfg), "drive_model": cfg.sim.drive_model
-        if cfg.backend == "sim" else None,
+        if cfg.simulated else None,
         "calibration_records": [r["content_hash"] for r in calibration_records],
         "motor_calibration": motor_hash(calibration_records),
         "control_hz": cfg.rates.control_hz, "learning_filter": learning_filter,

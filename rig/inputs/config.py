@@ -489,6 +489,13 @@ class RigConfig(_Strict):
                 data = {**data, "drive": {**(drive or {}), "port": "sim"}}
         return data
 
+    @property
+    def simulated(self) -> bool:
+        """Whether this is the simulated rig (``backend: sim``): nobody at the rig to
+        prompt, no hardware calibration required, the simulation's seed in the identity
+        its records carry. The backend itself is chosen in ``rig.loop.backends`` alone."""
+        return self.backend == "sim"
+
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False)
 

@@ -68,6 +68,16 @@ def open_bench(cfg: RigConfig) -> Bench:
     raise _unknown(cfg.backend)
 
 
+def load_cell_noise_n(cfg: RigConfig) -> float:
+    """The load cell's noise, 1 sigma (N), as the learner weighs trials: the simulated
+    rig's configured noise; on NI, the data sheet's 0.67 N error bound taken as 3 sigma."""
+    if cfg.backend == "sim":
+        return cfg.sim.load_cell_noise_n
+    if cfg.backend == "ni":
+        return 0.67 / 3
+    raise _unknown(cfg.backend)
+
+
 def serial_drive(cfg: RigConfig) -> bool:
     """Whether the drive is a real one on its serial port (``drive.port`` a device), not
     the simulated drive (``drive.port: sim``)."""

@@ -38,6 +38,6 @@ def content_hash(record: dict[str, Any]) -> str:
 
 def rig_identity(cfg: RigConfig) -> dict[str, Any]:
     ident: dict[str, Any] = {"name": cfg.name, "backend": cfg.backend}
-    if cfg.backend == "sim":
+    if cfg.simulated:
         ident["sim_seed"] = cfg.sim.seed
     return ident

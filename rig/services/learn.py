@@ -40,6 +40,7 @@ from rig.control import records as learned_records
 from rig.errors import InputError
 from rig.inputs import profiles
 from rig.inputs.config import RigConfig
+from rig.loop import backends
 from rig.recordings import runfile
 from rig.services import run as run_svc
 
@@ -96,9 +97,7 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     motor = motor_cal.record_in_use(full_records)
     filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None
             else ilc.LearningFilter.default(hz, cfg.loop.advance_s, factor))
-    # the load cell's noise (1 sigma, N): the simulated one, else the data sheet's 0.67 N
-    # error bound taken as 3 sigma
-    noise = cfg.sim.load_cell_noise_n if cfg.backend == "sim" else 0.67 / 3
+    noise = backends.load_cell_noise_n(cfg)
     # the drive models the update inverts: the motor calibration's, the thesis's single and
     # rise/fall models; each trial picks the one that explains it best, gain re-estimated
     models = tuple(m for m in [plant.from_motor_record(motor) if motor else None,

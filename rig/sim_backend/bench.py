@@ -74,11 +74,11 @@ class SimBench(Bench):
         self.shunt_resistor = float(resistor_ohm)
 
     def drive_static(self, demand_n: np.ndarray) -> np.ndarray:
-        from rig.sim_backend.drive_model import DriveModel
+        from rig.sim_backend.drive_model import DriveResponse
 
         cfg = self.cfg
         spc = cfg.rates.samples_per_cycle
-        drive = DriveModel(1.0 / self.rate_hz, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
+        drive = DriveResponse(1.0 / self.rate_hz, cfg.sim.drive_model, cfg.sim.process_time_unit_s)
         force = np.concatenate([np.maximum(drive.step(float(u), spc), 0.0)
                                 for u in np.asarray(demand_n, float)])
         lc = self.sensors["load_cell"]

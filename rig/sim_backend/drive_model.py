@@ -80,7 +80,7 @@ def ramp_lag_s(K: float, Tw: float, zeta: float, Tp3: float) -> float:
     return process_coefficients(Tw, zeta, Tp3)[2]
 
 
-class DriveModel:
+class DriveResponse:
     """Eq. D.1 (filter included) in one of ``VARIANTS``, stepped at a fixed dt (s)."""
 
     def __init__(self, dt: float, variant: str = "single",

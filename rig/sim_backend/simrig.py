@@ -21,7 +21,7 @@ from rig.inputs.params import Parameters
 from rig.model.action import ActionModel
 from rig.model.assembly import JOINTS
 from rig.sensors import table as sensor_table
-from rig.sim_backend.drive_model import DriveModel
+from rig.sim_backend.drive_model import DriveResponse
 from rig.sim_backend.drive_state import DriveState, DriveStatus
 from rig.sim_backend.sensors import SensorSet
 
@@ -69,7 +69,7 @@ class SimRig:
             if chain.counts_from_start:  # count 0 at the rest pose
                 self.sensors[s.name].offset = float(true[0])
         self.drive_state: DriveStatus = drive_state or DriveState(enabled=True)
-        self.drive = DriveModel(self.dt_sample, config.sim.drive_model,
+        self.drive = DriveResponse(self.dt_sample, config.sim.drive_model,
                                 config.sim.process_time_unit_s, self.model.params)
         self.volts_per_newton = config.drive_scaling.volts_per_newton
         warm = self.model.stepper()  # compile/warm the numba paths before the clock starts
