@@ -75,6 +75,13 @@ def table(line: list[str]) -> str:
     return "  ".join(line)
 
 
+UNCALIBRATED_LOAD_CELL = (
+    "note: the load cell has no calibration record (data-sheet sensitivity, zero offset "
+    "0): its true offset is in every force the learner reads and is learned into the "
+    "table, and where the profile asks for 0 N a positive offset is an error no push can "
+    "remove; run `rig calibrate loadcell` first")
+
+
 def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None,
           lockstep: bool = False, factor: float = ilc.DEFAULT_LEARNING_FACTOR,
           on_line: Callable[[str], None] | None = None,
@@ -84,7 +91,10 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
         raise InputError(f"--learn: expected at least 1 trial, got {n}")
     profile = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     hz = cfg.rates.control_hz
-    full_records = cal_records.embedded(cal_records.lookup(cfg), cfg)
+    cals = cal_records.lookup(cfg)
+    full_records = cal_records.embedded(cals, cfg)
+    if cals["load_cell"].nominal:
+        say(UNCALIBRATED_LOAD_CELL)
     t = grid(profile, hz)
     reference = np.array([profile.at(x) for x in t])
     prior = learned_records.find(cfg, profile, full_records) if use_learned else None
