@@ -427,6 +427,11 @@ class Sim(_Strict):
 
     realtime: bool = True
     seed: int = 4
+    noise_stream: int = Field(
+        0, ge=0, le=2**31, description="which of the seed's noise streams the sensors draw "
+        "(the true calibration is the seed's alone: the same rig); 0 for a run; `rig run "
+        "--learn` plays trial K on stream K, so each trial's noise is fresh, as a real load "
+        "cell's")
     effects: list[str] = Field(default_factory=lambda: ["flexible_shank"])
     friction: Literal["regularised", "stick"] = Field(
         "regularised", description="the simulated action's friction: regularised (the "

@@ -78,6 +78,17 @@ def load_cell_noise_n(cfg: RigConfig) -> float:
     raise _unknown(cfg.backend)
 
 
+def trial_rig(cfg: RigConfig, k: int) -> RigConfig:
+    """The rig for learning trial ``k`` (1, 2, ...): on the simulated rig its sensors draw
+    noise stream ``k`` (``sim.noise_stream``): each trial's load-cell noise is fresh, as a
+    real one's, on the same rig (its true calibration is the seed's); NI: the rig itself."""
+    if cfg.backend == "sim":
+        return cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"noise_stream": k})})
+    if cfg.backend == "ni":
+        return cfg
+    raise _unknown(cfg.backend)
+
+
 def serial_drive(cfg: RigConfig) -> bool:
     """Whether the drive is a real one on its serial port (``drive.port`` a device), not
     the simulated drive (``drive.port: sim``)."""

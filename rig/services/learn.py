@@ -146,8 +146,8 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
                 cfg, profile, full_records, learner.u, list(learner.history),
                 learner.history[-1] if learner.history else {}, filt_meta,
                 f"learning trial {k + 1} of {n}")
-            rep = run_svc.run(profile_path, cfg, out=path, lockstep=lockstep,
-                              learned=candidate)
+            rep = run_svc.run(profile_path, backends.trial_rig(cfg, k + 1), out=path,
+                              lockstep=lockstep, learned=candidate)
             runs.append(rep.path)
             if not rep.complete:
                 stopped = f"trial {k + 1} {rep.status}; kept what was learned before it"

@@ -144,14 +144,19 @@ class SensorSet:
 
     @classmethod
     def from_config(cls, cfg: RigConfig, seed: int | None = None) -> SensorSet:
-        rng = np.random.default_rng(cfg.sim.seed if seed is None else seed)
-        models = {}
-        for s in sensors(cfg):
-            chain = sim_chain(cfg, s)
-            sens = s.sensitivity * (1 + chain.spread * rng.standard_normal())
-            off = 0.0 if chain.offset_sd is None else chain.offset_sd * rng.standard_normal()
-            models[s.name] = SensorModel(s, sens, off, cfg.rates.acquisition_hz, rng, chain)
-        return cls(models)
+        """The seed draws the true sensitivities and offsets (the rig) and then, on stream 0,
+        the noise; ``sim.noise_stream`` K > 0 draws the noise from ``[seed, K]`` instead:
+        the same rig, another run's noise."""
+        base = cfg.sim.seed if seed is None else seed
+        rng = np.random.default_rng(base)
+        drawn = [(s, sim_chain(cfg, s)) for s in sensors(cfg)]
+        true = [(s.sensitivity * (1 + chain.spread * rng.standard_normal()),
+                 0.0 if chain.offset_sd is None else chain.offset_sd * rng.standard_normal())
+                for s, chain in drawn]
+        if cfg.sim.noise_stream:
+            rng = np.random.default_rng([base, cfg.sim.noise_stream])
+        return cls({s.name: SensorModel(s, sens, off, cfg.rates.acquisition_hz, rng, chain)
+                    for (s, chain), (sens, off) in zip(drawn, true, strict=True)})
 
     def truth(self) -> dict[str, dict[str, Any]]:
         """True sensitivities and offsets, in the calibration-record conventions."""
