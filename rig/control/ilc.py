@@ -40,7 +40,10 @@ The update (``Learner``, model-based; issue 18):
   trials' lateness): a sharp plan moves most when the writes come late.
 * Noise-aware: lam by the discrepancy principle (``noise_aware_step``): the update fits
   the error only down to what the load cell's noise explains (n sigma^2 times 1 + 2
-  standard deviations of its chi-square), so noise is not learned into the table; an
+  standard deviations of its chi-square), and no window of 1-64 cycles whose mean stands
+  out of the noise (``within_noise``: a multiresolution test, Bonferroni at 5 % over all
+  windows; a release's corner error a few cycles long is learned though the whole trial's
+  sum of squares hides it), so noise is not learned into the table; an
   error already within that is not learned from at all, and the next trials (the same
   table) are averaged with it (sigma^2 / m) until the error stands out (with noisy
   measurements a fixed-gain update keeps learning noise; stochastic ILC averages,
@@ -119,42 +122,86 @@ def discrepancy_tau(n: int) -> float:
 
 
 
+LOCAL_WIDTHS = (1, 2, 4, 8, 16, 32, 64)   # cycles: the windows of the local noise test
+LOCAL_LEVEL = 0.05             # its false-alarm rate on white noise (Bonferroni, all windows)
+
+
+def local_bound(n: int) -> float:
+    """The multiresolution test's bound: a window's mean error, in standard errors of
+    its own mean (sigma / sqrt(width)), that white noise exceeds anywhere in a trial of
+    ``n`` cycles with probability at most ``LOCAL_LEVEL`` (Bonferroni over every window
+    of every width in ``LOCAL_WIDTHS``; about 4.2 for 301 cycles)."""
+    from scipy.stats import norm
+
+    windows = sum(max(n - w + 1, 0) for w in LOCAL_WIDTHS)
+    return float(norm.isf(LOCAL_LEVEL / (2.0 * max(windows, 1))))
+
+
+def local_excess(r: np.ndarray, noise_var: float) -> float:
+    """The largest window mean of ``r`` over its standard error (sigma / sqrt(width)),
+    over every window of every width in ``LOCAL_WIDTHS``: a localized error (a release's
+    corner, a few cycles long) stands out here where the whole trial's sum of squares
+    hides it among the noise of the other cycles."""
+    c = np.concatenate(([0.0], np.cumsum(r)))
+    sd = np.sqrt(max(noise_var, 1e-12))
+    return max((float(np.max(np.abs(c[w:] - c[:-w]))) / (np.sqrt(w) * sd)
+                for w in LOCAL_WIDTHS if w <= r.size), default=0.0)
+
+
+def within_noise(e: np.ndarray, noise_var: float, tau: float) -> bool:
+    """Whether white noise of ``noise_var`` explains the error ``e``: its sum of squares
+    within tau n noise_var (the discrepancy principle) and no window standing out
+    (``local_excess`` within ``local_bound``)."""
+    e = np.asarray(e, float)
+    return (float(e @ e) <= tau * e.size * max(noise_var, 1e-6)
+            and local_excess(e, noise_var) <= local_bound(e.size))
+
+
 def noise_aware_step(T: np.ndarray, e: np.ndarray, noise_var: float,
                      tau: float) -> tuple[np.ndarray, float]:
     """The smallest update that explains the error down to its noise (Morozov's
-    discrepancy principle on norm-optimal ILC).
+    discrepancy principle on norm-optimal ILC, made multiresolution).
 
-    Minimises ||e - T du||^2 + lam ||du||^2, lam chosen so the residual ||e - T du||^2
-    is tau n noise_var: the error the update leaves is what the noise explains, no
-    less (the rest would be noise learned into the table). An error already within
-    tau n noise_var gives du = 0 and lam = inf.
+    Minimises ||e - T du||^2 + lam ||du||^2, lam the largest for which the residual
+    e - T du is what the noise explains (``within_noise``): its sum of squares at most
+    tau n noise_var, and no window of it standing out of the noise (a localized error
+    is fitted even when the whole trial's sum of squares would hide it); no smaller lam
+    (the rest would be noise learned into the table). An error already within the
+    noise gives du = 0 and lam = inf.
     """
     e = np.asarray(e, float)
     n = e.size
     target = tau * n * max(noise_var, 1e-6)
-    if float(e @ e) <= target:
+    if within_noise(e, noise_var, tau):
         return np.zeros(n), float("inf")
     s2, V = np.linalg.eigh(T.T @ T)   # T'T = V diag(s2) V' (robust where an SVD may fail)
     s2 = np.maximum(s2, 0.0)
     gamma = V.T @ (T.T @ e)
     ee = float(e @ e)
 
+    TV = T @ V
+    bound = local_bound(n)
+
     def resid(lam: float) -> float:   # ||e - T du(lam)||^2, du(lam) = (T'T + lam)^-1 T'e
         w = 1.0 / (s2 + lam)
         return ee - float(np.sum((2.0 * w - s2 * w * w) * gamma ** 2))
 
+    def explained(lam: float) -> bool:   # the residual within the noise, both ways
+        return resid(lam) <= target and local_excess(
+            e - TV @ (gamma / (s2 + lam)), noise_var) <= bound
+
     top = float(s2.max())
     lo, hi = np.log(top * 1e-12 + 1e-300), np.log(top * 1e6 + 1e-300)
-    if resid(np.exp(lo)) >= target:   # even the least-regularised fit is within the noise
+    if not explained(np.exp(lo)):   # even the least-regularised fit leaves no less
         lam = float(np.exp(lo))
     else:
         for _ in range(60):
             mid = 0.5 * (lo + hi)
-            if resid(np.exp(mid)) > target:
-                hi = mid
-            else:
+            if explained(np.exp(mid)):
                 lo = mid
-        lam = float(np.exp(0.5 * (lo + hi)))
+            else:
+                hi = mid
+        lam = float(np.exp(lo))
     return V @ (gamma / (s2 + lam)), lam
 
 
@@ -531,9 +578,7 @@ class Learner:
         # z - y0 is the error expected in the next trial with the same table
         y0, T0 = model(u0)
         z = (y0 if gain == f.gain else model(u0, f.gain)[0]) + e_avg
-        lam = float("inf")
-        if float((z - y0) @ (z - y0)) > tau * n * max(nv, 1e-6):
-            _, lam = noise_aware_step(T0, z - y0, nv, tau)
+        _, lam = noise_aware_step(T0, z - y0, nv, tau)
         if not np.isfinite(lam):
             err["updated"] = 0.0
             self.notes.append(f"{what}; error within the noise (over {m} trial"
