@@ -81,7 +81,7 @@ def synth_trial(truth: ActionModel, profile: profiles.Profile, cfg: RigConfig,
     n_per = cfg.rates.samples_per_cycle
     tc, dem = demand(profile, cfg, dur)
     drive = DriveResponse(1.0 / rate, cfg.sim.drive_model, cfg.sim.process_time_unit_s,
-                       truth.params)
+                          truth.params)
     force = np.concatenate([[0.0]] + [np.maximum(drive.step(float(u), n_per), 0.0)
                                       for u in dem])
     ts = np.arange(force.size) / rate

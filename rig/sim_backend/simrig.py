@@ -70,7 +70,7 @@ class SimRig:
                 self.sensors[s.name].offset = float(true[0])
         self.drive_state: DriveStatus = drive_state or DriveState(enabled=True)
         self.drive = DriveResponse(self.dt_sample, config.sim.drive_model,
-                                config.sim.process_time_unit_s, self.model.params)
+                                   config.sim.process_time_unit_s, self.model.params)
         self.volts_per_newton = config.drive_scaling.volts_per_newton
         warm = self.model.stepper()  # compile/warm the numba paths before the clock starts
         for j in range(1, 4):
