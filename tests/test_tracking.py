@@ -1079,3 +1079,62 @@ def test_the_model_based_update_restarts_from_the_kept_table_with_half_the_step(
     assert step @ first / (np.linalg.norm(step) * np.linalg.norm(first)) > 0.99
     lrn.update(_trial(r, 0.20, seed=3))       # a new kept trial doubles the step again
     assert lrn.result()[1]["trial"] == 3 and lrn._trust == 1.0
+
+
+def test_the_learner_reads_the_recorded_force_not_the_loops_late_reads(tmp_path,
+                                                                       monkeypatch):
+    # issue 41: in real time the loop is sometimes handed a sample a period old (the
+    # plant process behind real time around the strike): on forte's release one period
+    # late reads 1.5 N that is not in the force on the key. The learner learns from the
+    # recorded force at each cycle's tick (load_cell_at_cycles), and its errors are of
+    # that force. Here the loop's reads of a lock-step trial are made late at the release,
+    # as measured on a loaded machine, after the trial wrote them.
+    import h5py
+
+    from rig.services import learn as learn_svc
+    from rig.services import run as run_svc
+
+    cfg = config.from_mapping({"name": "t", "backend": "sim", "drive": {"port": "sim"},
+                               "sim": {"realtime": False, "seed": 3},
+                               "loop": {"rest_s": 0.05, "settle_s": 0.05},
+                               "data_folder": str(tmp_path)})
+    real_run = run_svc.run
+    late_at = np.arange(155, 170)   # cycles of the release (310-338 ms)
+
+    def run_with_late_reads(*a, **kw):
+        rep = real_run(*a, **kw)
+        with h5py.File(rep.path, "r+") as f:
+            cmd = f["trial_000/commands"]
+            t = cmd["time"][:]
+            first = int(np.argmax(t >= -1e-9))
+            seen = cmd["measured_force"][:]
+            seen[first + late_at] = seen[first + late_at - 1]   # one period late
+            cmd["measured_force"][:] = seen
+        return rep
+
+    monkeypatch.setattr(run_svc, "run", run_with_late_reads)
+    p = profiles.load("profiles/forte.yaml", force_limit=cfg.limits.max_force_n)
+    rep = learn_svc.learn(Path("profiles/forte.yaml"), cfg, 1, out=tmp_path / "f.h5",
+                          lockstep=True)
+    path = rep.runs[0]
+    t = learn_svc.grid(p, cfg.rates.control_hz)
+    ref = np.array([p.at(x) for x in t])
+    recorded = learn_svc.load_cell_at_cycles(path, t.size)
+    seen = learn_svc.measured_force(path, t.size)
+    # the loop's reads differ where they were made late, and only there
+    assert np.array_equal(np.nonzero(recorded != seen)[0], late_at)
+    assert np.abs(seen - recorded).max() > 1.0   # N: a period late on the release
+    # the recorded force at each tick is the period's last 2 kHz sample (the sample the
+    # loop is handed when it comes in time)
+    from rig.recordings import runfile
+    tr = runfile.read(path).trials[0]
+    k = np.searchsorted(tr.time, t[100]) - 1
+    assert recorded[100] == tr.channels["force"][k] and tr.time[k] < t[100]
+    # what the learner learned from and printed: the recorded force's error
+    by_recorded, by_seen = ilc.errors(ref, recorded, p.peak), ilc.errors(ref, seen, p.peak)
+    assert by_recorded["rms_n"] != pytest.approx(by_seen["rms_n"], abs=1e-6)
+    assert rep.history[0]["rms_n"] == pytest.approx(by_recorded["rms_n"], abs=1e-12)
+    assert rep.history[0]["max_n"] == pytest.approx(by_recorded["max_n"], abs=1e-12)
+    # a record that does not cover the profile is refused, naming the file and dataset
+    with pytest.raises(InputError, match=r"f-learn1\.h5: commands/time"):
+        learn_svc.load_cell_at_cycles(path, t.size + 10_000)
