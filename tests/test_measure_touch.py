@@ -23,6 +23,7 @@ from rig.recordings import runfile
 from rig.services import calibrate as cal_svc
 from rig.services import measure_touch as svc
 from rig.services import run as run_svc
+from rig.sim_backend.simrig import sim_parameters
 
 ROOT = Path(__file__).resolve().parents[1]
 MASSES = [0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0]
@@ -31,12 +32,13 @@ MASSES = [0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0]
 RAMPS = ct.Ramps(from_g=30.0, to_g=42.0, low_g=24.0, rate_g_s=2.0)
 
 
-def sim(tmp_path: Path) -> config.RigConfig:
+def sim(tmp_path: Path, friction: str = "regularised") -> config.RigConfig:
     """The simulated rig on the base model (the one `rig touch` measures), lock-step."""
     return config.from_mapping({
         "name": "touch", "backend": "sim", "data_folder": str(tmp_path),
         "drive": {"port": "sim", "poll_period_s": 0.01},
-        "sim": {"realtime": False, "effects": []}, "loop": {"rest_s": 0.2},
+        "sim": {"realtime": False, "effects": [], "friction": friction},
+        "loop": {"rest_s": 0.2},
         "channels": {"strain_gauge": {"enabled": False}}})
 
 
@@ -76,7 +78,45 @@ def test_the_start_is_where_the_dip_leaves_its_elastic_trend() -> None:
         ct.find_start(t, 1e-6 * t, force, (0.0, 6.0), +1, ct.Ramps(), 5e-7, "synthetic")
 
 
+def test_the_travel_rule_reads_the_force_where_the_key_has_gone_the_threshold() -> None:
+    """The synthetic ramp above: the key has gone 0.25 mm from where it stood at the ramp's
+    start when 2e-3 (t - 3)^2 + 1e-6 t = 2.5e-4, t = 3.3512 s (3.3515 s on the 0.5 um
+    counts); the travel rule's weight is the fitted ramp's force there, the onset rule's at
+    3.05 s."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 6, 5e-4)
+    dip = 1e-6 * t + np.where(t > 3.0, 2e-3 * (t - 3.0) ** 2, 0.0)
+    dip = np.round(dip / 5e-7) * 5e-7
+    force = 0.3 + 0.02 * t + rng.normal(0, 0.2, t.size)
+    s = ct.find_start(t, dip, force, (0.0, 6.0), +1, ct.Ramps(), 5e-7, "synthetic")
+    assert s.ref_dip_m == 0.0
+    assert s.went_s == pytest.approx(3.3515, abs=2e-4)
+    assert s.went_dip_m - s.ref_dip_m > 0.25e-3
+    assert s.weight_n("travel") == s.went_force_n == pytest.approx(0.3 + 0.02 * 3.3515,
+                                                                   abs=3e-3)
+    assert s.weight_n("onset") == s.force_n
+    # a trial's figures follow the rule
+    up = ct.find_start(t, 8e-3 - dip, force, (0.0, 6.0), -1, ct.Ramps(), 5e-7, "synthetic")
+    for rule, key in (("travel", "went_force_n"), ("onset", "force_n")):
+        m = ct.summarise(ct.Ramps(rule=rule), [{"down": s, "up": up}] * 2)
+        assert m.per_trial_g()["down_weight"] == [ct.grams(getattr(s, key))] * 2
+        assert m.raw_points()[0]["down"]["force_n"] == getattr(s, key)
+    with pytest.raises(ValueError, match="auto is resolved by the rig"):
+        ct.analyse([], ct.Ramps(), 5e-7)
+
+
+def test_auto_takes_onset_only_on_the_simulated_regularised_action(tmp_path: Path) -> None:
+    cfg = sim(tmp_path)
+    assert svc.resolve_rule(cfg, "auto") == "onset"
+    assert svc.resolve_rule(cfg, "travel") == "travel"
+    stick = sim(tmp_path, "stick")
+    assert svc.resolve_rule(stick, "auto") == "travel"
+    assert svc.resolve_rule(stick, "onset") == "onset"
+
+
 @pytest.mark.parametrize("ramps, words", [
+    (ct.Ramps(rule="start"), "--rule: expected one of auto, travel, onset, got 'start'"),
+    (ct.Ramps(condition=-1), "--condition: expected 0 or more presses, got -1"),
     (ct.Ramps(from_g=40, to_g=30), "--from, --to, --low: expected low < from < to"),
     (ct.Ramps(rate_g_s=0), "--rate: expected a positive number, got 0"),
     (ct.Ramps(to_g=6000), "--to: 6000 g (58.840 N) is over the rig's limits.max_force_n"),
@@ -191,3 +231,68 @@ def test_the_record_is_written_and_later_runs_embed_it(measured, tmp_path: Path)
     text = (ROOT / "docs" / "json.md").read_text()
     schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
     jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.measure-touch/1"))
+
+
+# the sticking simulated rig's presses: from under where the key starts to creep (about 44 g)
+# to over where it runs away (53.5 g), back to under its up force at the stop (20 g); 30.5 s
+STICK_RAMPS = ct.Ramps(from_g=44.0, to_g=58.0, low_g=14.0, rate_g_s=2.0)
+
+
+@pytest.fixture(scope="module")
+def stuck(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+    """`rig measure touch` on the simulated rig with ``sim.friction: stick`` (one conditioning
+    press, 3 trials, the travel rule by auto) and `rig touch` of the same model."""
+    tmp = tmp_path_factory.mktemp("stick")
+    cfg = sim(tmp, "stick")
+    cal_svc.calibrate_loadcell(cfg, MASSES)
+    result, record, run_file = svc.measure_touch(cfg, STICK_RAMPS, trials=3,
+                                                 out=tmp / "stick.h5")
+    return result, record, run_file, touch.measure(ActionModel(sim_parameters(cfg)))
+
+
+@pytest.mark.slow
+def test_the_sticking_rig_weighs_every_worked_press_alike_by_the_travel_rule(stuck) -> None:
+    """On the sticking simulated rig (auto: the travel rule) the conditioning press is run
+    and left out, and the recorded presses agree with each other: spread under 1.5 g for
+    the down- and up-weight. The press from the assembled rest (the conditioning one) goes
+    down over 3 g higher than the worked ones, so recording it -- the rule before this one
+    -- would break that. The onset rule on the same presses reads the start of the creep
+    off the pressed stop, over 10 g above `rig touch`'s up force at the stroke's end; the
+    travel rule reads within 2 g of it."""
+    result, record, run_file, res = stuck
+    ref = res.from_rest()
+    assert ref["down_dip_m"] == pytest.approx(0.25e-3) and 7e-3 < ref["up_dip_m"] < 8e-3
+    assert result.ramps.rule == "travel" and result.ramps.condition == 1
+    run = runfile.read(run_file)
+    assert len(run.trials) == 4 and len(result.trials) == 3
+    f = result.figures
+    for name in ("down_weight", "up_weight"):
+        assert 0 < f[name]["spread_g"] < 1.5, (name, f[name])
+    count = svc.count_m(sim(Path("."), "stick"))
+    first = ct.analyse([run.trials[0].channels], result.ramps, count).trials[0]
+    assert ct.grams(first["down"].went_force_n) - f["down_weight"]["mean_g"] > 3
+    onset_up = np.mean([ct.grams(tr["up"].force_n) for tr in result.trials])
+    assert onset_up - ref["up_weight"] > 10
+    assert abs(f["up_weight"]["mean_g"] - ref["up_weight"]) < 2
+    rec = records.read(record)
+    assert rec["checks"]["rule"] == "travel" and rec["checks"]["conditioning_presses"] == 1
+    assert rec["raw_points"][0]["down"]["force_n"] == result.trials[0]["down"].went_force_n
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 40, open: the worked sticking action goes down 3.4 g under rig touch's press from "
+    "rest (46.74 +- 0.76 g against 50.10 g, 3 trials) and comes back 1.1 g under its up "
+    "force at the stroke's end (18.94 +- 0.83 g against 20.08 g): the action's state after "
+    "a press is not the assembled rest rig touch starts from (docs/touch.md)"))
+def test_the_sticking_rig_measures_rig_touchs_weights_from_rest_within_its_spread(
+        stuck) -> None:
+    """The acceptance criterion: the sticking simulated rig's down- and up-weight (travel
+    rule, after the conditioning press) within the spread the measurement reports of `rig
+    touch`'s down force at the stroke's start and up force at its end, the figures a press
+    from rest measures (``Touch.from_rest``)."""
+    result, _, _, res = stuck
+    ref = res.from_rest()
+    f = result.figures
+    for name in ("down_weight", "up_weight"):
+        assert abs(f[name]["mean_g"] - ref[name]) <= f[name]["spread_g"], (name, f[name], ref)

@@ -5,20 +5,36 @@ profile run through the torque loop (``rig.services.run``): an approach from 0 t
 ``from_g`` (below the down-weight), a slow ramp up to ``to_g`` at ``rate_g_s`` (the key
 leaves its rest and runs down to its stop: its balance force falls along the stroke, so no
 weight holds it mid-stroke), a hold, and a slow ramp down to ``low_g`` (the key leaves its
-pressed stop and runs back up). From the key encoder's dip and the load cell's force:
+pressed stop and runs back up). ``condition`` such presses come first and are not
+recorded: a technician works the key once before weighing it, so that every recorded press
+starts from the state a press leaves (with friction that sticks, the action's state depends
+on its history; from the assembled rest the first press is an outlier). From the key
+encoder's dip and the load cell's force:
 
-* the key **goes** on a ramp when its dip has left the dip at the ramp's start by
-  ``threshold_mm`` (0.25 mm: the touch stroke's first step, past the felts' compression);
+* the key **goes** on a ramp when its dip has left the dip at the ramp's start (its rest
+  under ``from_g``, its pressed stop under ``to_g``) by ``threshold_mm`` (0.25 mm: the
+  touch stroke's first step, past the felts' compression); the force there is the
+  ``travel`` rule's weight;
 * it **started** at the last sample before that where the dip was still on its elastic
   trend (a straight line fitted to the dip over the ramp's first part, while the key sat
   on its felts or its stop): within ``onset_counts`` encoder counts, or five times the
-  fit's RMS residual when that is larger (the encoder's noise on a real rig);
-* the force there is the load cell's force from a straight line fitted over the whole slow
-  ramp (the drive follows the demand; one sample's noise is ~0.2 N, the line's at a point
-  ~100 times less).
+  fit's RMS residual when that is larger (the encoder's noise on a real rig); the force
+  there is the ``onset`` rule's weight;
+* forces are read from a straight line fitted to the load cell over the whole slow ramp
+  (the drive follows the demand; one sample's noise is ~0.2 N, the line's at a point ~100
+  times less).
 
-``down_weight`` is the force at which the key starts down from rest, ``up_weight`` the force
-at which it starts back up from its pressed stop; ``balance_weight`` and ``friction`` are
+``rule``: ``travel`` (a technician's: the weight at which the key has moved the threshold)
+on an action that sticks -- every real one, and the simulated rig with ``sim.friction:
+stick`` -- where the key may creep quasi-statically before it goes and the onset would find
+the start of that creep; ``onset`` on the simulated rig's regularised friction laws, which
+carry no force at zero speed: there the key creeps off at the frictionless balance, the
+onset is that balance and the threshold's force only adds the ramp's run-on while the key
+travels it. ``auto`` (the default) picks ``onset`` for the simulated rig with
+``sim.friction: regularised`` and ``travel`` otherwise (rig.services.measure_touch).
+
+``down_weight`` is the force at which the key goes down from rest, ``up_weight`` the force
+at which it comes back up from its pressed stop; ``balance_weight`` and ``friction`` are
 (DW + UW) / 2 and (DW - UW) / 2 per trial. Each figure: the trials' mean, their standard
 deviation and the spread ``2 sd`` (k = 2). Forces in N inside; grams-force at the key top
 (N / G0 x 1000) in the record's figures, where the motor presses: the model's key front.
@@ -41,6 +57,7 @@ UNITS = {"raw": "N (load cell), m (key dip)", "calibrated": "g (grams-force at t
 FIGURES = ("down_weight", "up_weight", "balance_weight", "friction")
 SKIP_S = 0.3  # s after a ramp's knot left out of the fits (the drive's lag and settling)
 FIT_SHARE = 0.4  # the dip's elastic trend is fitted over this share of the ramp before it goes
+RULES = ("auto", "travel", "onset")  # auto: resolved by the rig (rig.services.measure_touch)
 
 
 def grams(force_n: float) -> float:
@@ -63,6 +80,8 @@ class Ramps:
     onset_counts: float = 10.0
     approach_s: float = 0.5
     hold_s: float = 1.0
+    rule: str = "auto"  # which force is the weight: travel (at the threshold) or onset
+    condition: int = 1  # presses before the recorded trials, not recorded
 
     def check(self, max_force_n: float) -> None:
         """One-line InputError naming the option for a press that cannot work."""
@@ -71,6 +90,11 @@ class Ramps:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"--{_opt(name)}: expected a positive number, got {v:g}")
+        if self.rule not in RULES:
+            raise InputError(f"--rule: expected one of {', '.join(RULES)}, got {self.rule!r}")
+        if isinstance(self.condition, bool) or not isinstance(self.condition, int) \
+                or self.condition < 0:
+            raise InputError(f"--condition: expected 0 or more presses, got {self.condition!r}")
         if not (math.isfinite(self.low_g) and self.low_g >= 0):
             raise InputError(f"--low: expected 0 g or more, got {self.low_g:g}")
         if not self.low_g < self.from_g < self.to_g:
@@ -109,18 +133,30 @@ class Ramps:
 def _opt(name: str) -> str:
     return {"from_g": "from", "to_g": "to", "low_g": "low", "rate_g_s": "rate",
             "threshold_mm": "threshold", "onset_counts": "onset-counts",
-            "approach_s": "approach", "hold_s": "hold"}[name]
+            "approach_s": "approach", "hold_s": "hold", "rule": "rule",
+            "condition": "condition"}[name]
 
 
 @dataclass
 class Start:
-    """Where the key started to move on one ramp."""
+    """Where the key started to move on one ramp (the onset) and where it had gone."""
 
-    force_n: float
+    force_n: float  # at the onset
     time_s: float
     dip_m: float
     went_s: float  # when it had gone threshold_mm
     onset_tol_m: float  # the departure from the elastic trend taken as a start
+    went_force_n: float = math.nan  # the force when it had gone threshold_mm
+    went_dip_m: float = math.nan
+    ref_dip_m: float = math.nan  # the dip at the ramp's start the travel is counted from
+
+    def weight_n(self, rule: str) -> float:
+        """The force the ``rule`` (travel or onset) takes as the weight."""
+        if rule == "travel":
+            return self.went_force_n
+        if rule == "onset":
+            return self.force_n
+        raise ValueError(f"rule: expected travel or onset, got {rule!r}")
 
 
 def _line(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
@@ -160,7 +196,9 @@ def find_start(t: np.ndarray, dip: np.ndarray, force: np.ndarray, seg: tuple[flo
     fwin = ts >= t0 + SKIP_S
     fcoef, _ = _line(ts[fwin], fs[fwin])
     t_start = float(ts[i0])
-    return Start(float(np.polyval(fcoef, t_start)), t_start, float(ds[i0]), t_gone, tol)
+    return Start(float(np.polyval(fcoef, t_start)), t_start, float(ds[i0]), t_gone, tol,
+                 went_force_n=float(np.polyval(fcoef, t_gone)), went_dip_m=float(ds[i_gone]),
+                 ref_dip_m=ref)
 
 
 @dataclass
@@ -173,15 +211,19 @@ class TouchMeasurement:
     load_cell_zero_g: float = math.nan  # k = 2: the zero of the load cell's record, in g
 
     def per_trial_g(self) -> dict[str, list[float]]:
-        dw = [grams(tr["down"].force_n) for tr in self.trials]
-        uw = [grams(tr["up"].force_n) for tr in self.trials]
+        rule = self.ramps.rule
+        dw = [grams(tr["down"].weight_n(rule)) for tr in self.trials]
+        uw = [grams(tr["up"].weight_n(rule)) for tr in self.trials]
         return {"down_weight": dw, "up_weight": uw,
                 "balance_weight": [(d + u) / 2 for d, u in zip(dw, uw, strict=True)],
                 "friction": [(d - u) / 2 for d, u in zip(dw, uw, strict=True)]}
 
     def raw_points(self) -> list[dict[str, Any]]:
-        return [{press: {"force_n": s.force_n, "time_s": s.time_s, "dip_m": s.dip_m,
-                         "went_s": s.went_s, "onset_tolerance_m": s.onset_tol_m}
+        return [{press: {"force_n": s.weight_n(self.ramps.rule), "onset_force_n": s.force_n,
+                         "time_s": s.time_s, "dip_m": s.dip_m,
+                         "went_s": s.went_s, "went_force_n": s.went_force_n,
+                         "went_dip_m": s.went_dip_m, "ref_dip_m": s.ref_dip_m,
+                         "onset_tolerance_m": s.onset_tol_m}
                  for press, s in tr.items()} for tr in self.trials]
 
 
@@ -198,7 +240,11 @@ def summarise(ramps: Ramps, trials: list[dict[str, Start]]) -> TouchMeasurement:
 
 def analyse(trial_channels: list[dict[str, np.ndarray]], ramps: Ramps,
             count_m: float) -> TouchMeasurement:
-    """The starts of every trial (``time``, ``force`` N, ``key_dip`` m channels)."""
+    """The starts of every recorded trial (``time``, ``force`` N, ``key_dip`` m channels);
+    ``ramps.rule`` travel or onset (``auto`` is the rig's to resolve)."""
+    if ramps.rule not in ("travel", "onset"):
+        raise ValueError(f"rule: expected travel or onset, got {ramps.rule!r} (auto is "
+                         f"resolved by the rig: rig.services.measure_touch.resolve_rule)")
     segs = ramps.segments()
     out = []
     for k, ch in enumerate(trial_channels):

@@ -28,7 +28,14 @@ def measure_touch(
         "--low", help="g at the key top where the ramp down ends (under the up-weight)")] = 10.0,
     rate: Annotated[float, typer.Option(help="ramp rate, g per second")] = 2.0,
     threshold: Annotated[float, typer.Option(
-        help="mm of key dip that shows the key went (its start is found before it)")] = 0.25,
+        help="mm of key travel, from its rest / its pressed stop, at which the key has "
+             "gone")] = 0.25,
+    rule: Annotated[str, typer.Option(
+        help="the weight: travel (the force where the key has gone --threshold), onset (where "
+             "it left its elastic trend before it), auto (onset on the simulated rig's "
+             "regularised friction, travel on an action that sticks)")] = "auto",
+    condition: Annotated[int, typer.Option(
+        help="conditioning presses before the recorded trials (not recorded)")] = 1,
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="the presses' run file (.h5); default <data_folder>/<time>-"
                             "touch-ramps.h5")] = None,
@@ -58,7 +65,8 @@ def measure_touch(
     try:
         result, record, run_file = svc.measure_touch(
             cfg, Ramps(from_g=from_g, to_g=to_g, low_g=low_g, rate_g_s=rate,
-                       threshold_mm=threshold), trials=trials, out=out, force=force,
+                       threshold_mm=threshold, rule=rule, condition=condition),
+            trials=trials, out=out, force=force,
             operator=operator, folder=records_dir, lockstep=lockstep,
             on_line=None if json_out else _say)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors

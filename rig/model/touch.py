@@ -116,6 +116,17 @@ class Touch:
     up_states: np.ndarray = field(default_factory=lambda: np.empty(0))
     turn_force_n: float = math.nan
 
+    def from_rest(self) -> dict[str, float]:
+        """What a slow press from rest measures, in grams-force at the key front (and the
+        dips, m): the down force at the stroke's first point (the key has gone its first
+        step, 0.25 mm, from rest) and the up force at its last (one step back from where
+        the press stopped). `rig measure touch`'s travel rule reads the weights there: once
+        the key goes, the balance force falls along the stroke, so it runs to its stop and
+        back to rest and no mid-stroke weight can be read (docs/touch.md, "On the rig")."""
+        return {"down_weight": grams(float(self.down_n[0])),
+                "up_weight": grams(float(self.up_n[-1])),
+                "down_dip_m": float(self.dip_m[0]), "up_dip_m": float(self.dip_m[-1])}
+
     def to_json(self) -> dict[str, Any]:
         return {
             "figures": {n: {"value": self.figures[n], "units": UNITS[n],

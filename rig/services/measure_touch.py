@@ -4,7 +4,9 @@
 
 The motor presses the key with slow force ramps (rig.calibration.touch): one trial is one
 force profile run through the same torque loop, acquisition and run file as `rig run`
-(rig.services.run; the simulated rig without hardware, the NI rig with it). The run file
+(rig.services.run; the simulated rig without hardware, the NI rig with it). The first
+``ramps.condition`` trials of the run file are the conditioning presses, not analysed; the
+rule ``auto`` is resolved here from the rig (``resolve_rule``). The run file
 is kept (``--out``, refused when it exists unless ``force``); the figures with their spread
 go into a calibration-style record (``touch``, rig.calibration.records) in the records
 folder, which later runs embed in their metadata (``touch_record``). Nothing is recorded
@@ -14,6 +16,7 @@ when a trial does not show the key going down and coming back.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +38,15 @@ def count_m(cfg: RigConfig) -> float:
     return abs(float(enc[0].si_per_count))
 
 
+def resolve_rule(cfg: RigConfig, rule: str) -> str:
+    """``auto``: ``onset`` on the simulated rig with the regularised friction laws (no force
+    at zero speed: the key creeps off at the frictionless balance, so its onset is that
+    balance), ``travel`` on every action that sticks (a real one, ``sim.friction: stick``)."""
+    if rule != "auto":
+        return rule
+    return "onset" if cfg.simulated and cfg.sim.friction == "regularised" else "travel"
+
+
 def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
                   out: Path | None = None, force: bool = False, operator: str | None = None,
                   folder: Path | None = None, lockstep: bool = False,
@@ -45,6 +57,7 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
     if trials < 2:
         raise InputError(f"--trials: expected at least 2 (the spread needs them), got {trials}")
     ramps.check(cfg.limits.max_force_n)
+    ramps = replace(ramps, rule=resolve_rule(cfg, ramps.rule))
     count = count_m(cfg)
     lc = records.lookup(cfg)["load_cell"]
     if lc.nominal:  # a data-sheet zero is tenths of a newton off: tens of grams
@@ -54,12 +67,16 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
     zero_g = ct.grams(abs(float(records.read(Path(lc.record_file))["uncertainty"]
                                  ["offset_v_per_v"]) / lc.sensitivity))
     profile = ramps.profile(cfg.limits.max_force_n, cfg.limits.max_profile_s)
-    rep = run_svc.run(profile, cfg, trials=trials, out=out, force=force, lockstep=lockstep,
-                      on_line=on_line)
+    if on_line is not None and ramps.condition:
+        on_line(f"{ramps.condition} conditioning press{'es' if ramps.condition > 1 else ''} "
+                f"first (not recorded), then {trials} trials; the weight is read by the "
+                f"{ramps.rule} rule")
+    rep = run_svc.run(profile, cfg, trials=ramps.condition + trials, out=out, force=force,
+                      lockstep=lockstep, on_line=on_line)
     if not rep.complete:
         raise RigError(f"run: {rep.path}: {rep.status}; nothing recorded")
     run = runfile.read(rep.path)
-    result = ct.analyse([tr.channels for tr in run.trials], ramps, count)
+    result = ct.analyse([tr.channels for tr in run.trials[ramps.condition:]], ramps, count)
     result.load_cell_zero_g = zero_g
     rec = records.build(
         "touch", cfg, identifier=cfg.channels.encoders[_key_encoder(cfg)].counter,
@@ -69,7 +86,8 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
         uncertainty={**{name: {"spread_g": f["spread_g"], "k": 2.0}
                         for name, f in result.figures.items()},
                      "load_cell_zero_g": zero_g, "load_cell_record": lc.source},
-        checks={"trials": trials, "per_trial_g": result.per_trial_g()},
+        checks={"trials": trials, "conditioning_presses": ramps.condition,
+                "rule": ramps.rule, "per_trial_g": result.per_trial_g()},
         extra={"settings": ramps.__dict__ | {"key_encoder_count_m": count},
                "run_file": str(rep.path)})
     return result, records.write(records_folder(cfg, folder), rec), rep.path
@@ -79,8 +97,8 @@ def _key_encoder(cfg: RigConfig) -> str:
     return next(n for n, e in cfg.channels.encoders.items() if e.channel_name == "key_dip")
 
 
-DOCS = {"down_weight": "force at which the key starts down from rest (slow ramp up)",
-        "up_weight": "force at which the key starts back up from its pressed stop (ramp down)",
+DOCS = {"down_weight": "force at which the key goes down from rest (slow ramp up)",
+        "up_weight": "force at which the key comes back up from its pressed stop (ramp down)",
         "balance_weight": "(down-weight + up-weight) / 2",
         "friction": "(down-weight - up-weight) / 2"}
 
@@ -94,17 +112,21 @@ def summary(result: ct.TouchMeasurement) -> list[str]:
                      f"({f['mean_n']:.4f} N)   {DOCS[name]}")
     n = len(result.trials)
     r = result.ramps
-    lines.append(f"{n} trials; +- is 2 x the trials' standard deviation (k = 2); the load "
-                 f"cell's zero adds +- {result.load_cell_zero_g:.2f} g to every weight (k = 2, "
-                 f"its record); ramps {r.from_g:g} -> "
-                 f"{r.to_g:g} -> {r.low_g:g} g at {r.rate_g_s:g} g/s; the key goes at "
-                 f"{r.threshold_mm:g} mm, its start is where it left its elastic trend")
+    rule = (f"the weight is the force where the key had moved {r.threshold_mm:g} mm from its "
+            f"rest / its pressed stop (travel rule)" if r.rule == "travel" else
+            f"the weight is the force where the key left its elastic trend before it moved "
+            f"{r.threshold_mm:g} mm (onset rule)")
+    lines.append(f"{n} trials after {r.condition} conditioning press(es); +- is 2 x the "
+                 f"trials' standard deviation (k = 2); the load cell's zero adds +- "
+                 f"{result.load_cell_zero_g:.2f} g to every weight (k = 2, its record); ramps "
+                 f"{r.from_g:g} -> {r.to_g:g} -> {r.low_g:g} g at {r.rate_g_s:g} g/s; {rule}")
     return lines
 
 
 def document(result: ct.TouchMeasurement, record: Path, run_file: Path) -> dict[str, Any]:
     """`rig measure touch --json`'s document (schema rig.measure-touch/1, docs/json.md)."""
     return {"schema": "rig.measure-touch/1", "figures": result.figures,
-            "per_trial_g": result.per_trial_g(),
+            "per_trial_g": result.per_trial_g(), "rule": result.ramps.rule,
+            "conditioning_presses": result.ramps.condition,
             "load_cell_zero_g": result.load_cell_zero_g,
             "record": str(record), "run_file": str(run_file)}
