@@ -52,7 +52,8 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
                   folder: Path | None = None, lockstep: bool = False,
                   on_line: Callable[[str], None] | None = None
                   ) -> tuple[ct.TouchMeasurement, Path, Path]:
-    """Run ``trials`` presses, find where the key starts down and back up, write the record.
+    """Run the conditioning presses and ``trials`` recorded presses, read where the key goes
+    down and back up by the rule, write the record.
     Returns the measurement, the record's path and the run file's path."""
     if trials < 2:
         raise InputError(f"--trials: expected at least 2 (the spread needs them), got {trials}")
