@@ -52,6 +52,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=0.15)
     ap.add_argument("--jobs", type=int, default=None)
     ap.add_argument("--input", default="force", help="the models' input: force or motion")
+    ap.add_argument("--weights", choices=("none", "noise"), default="none",
+                    help="diagnose's sample weights (docs/workflow.md; default: diagnose's)")
     ap.add_argument("--vary", action="store_true",
                     help="draw effect values, blows, noise, filter and window per seed")
     args = ap.parse_args()
@@ -95,7 +97,7 @@ def main() -> None:
                 meas = ms.load(run)
                 t0 = time.perf_counter()
                 diag = dg.diagnose(ActionModel(), meas, duration=duration, jobs=args.jobs,
-                                   input=args.input)
+                                   input=args.input, weights=args.weights)
                 times.append(time.perf_counter() - t0)
             names = diag.chosen_names
             top1 += bool(names) and names[0] in hidden

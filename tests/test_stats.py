@@ -249,6 +249,44 @@ def test_noise_model_test_holds_its_level_and_keeps_its_power_beside_another_mis
     assert found_hac < found_noise, (found_hac, found_noise)
 
 
+def test_weighted_noise_model_test_holds_its_level_and_keeps_a_localized_change() -> None:
+    """Weighted residuals (1 / the noise model's SD per sample, as diagnose weighs them):
+    on noise alone the two-statistic test holds its level; a change confined to where the
+    input noise is large in variance but moves the residual in one shape (a timing-like
+    direction), which the weights push down, is found by it as by the unweighted test,
+    and more often than by the weighted statistic alone."""
+    rng = np.random.default_rng(4)
+    t = np.arange(N) / 2000
+    out_sigma = np.full(N, 0.3)
+    burst = np.exp(-0.5 * ((t - 0.1) / 0.004) ** 2)  # a strike: sharp, 4 ms
+    shape = np.gradient(burst, t) * 1e-3  # the input noise shifts it in time
+
+    def draws(k: int) -> np.ndarray:
+        return rng.standard_normal((k, 1)) * 10.0 * shape[None, :] + 0.2 * np.array(
+            [coloured(rng) for _ in range(k)])
+
+    var = out_sigma ** 2 + 100.0 * shape ** 2 + 0.04  # the weights: 0.23-1
+    w = np.sqrt(np.median(var) / var)
+    alarms, reps = 0, 400
+    for _ in range(reps):
+        noise = out_sigma * rng.standard_normal(N) + draws(1)[0]
+        delta = 0.05 * np.sin(2 * math.pi * 30 * t + rng.uniform(0, 6))
+        _, p = stats.weighted_noise_model_test(w * noise, w * (noise - delta),
+                                               w * out_sigma, w * draws(32), w)
+        alarms += p <= 0.05
+    assert alarms / reps <= 0.08, alarms / reps
+    found_both = found_w = 0
+    for _ in range(100):
+        noise = out_sigma * rng.standard_normal(N) + draws(1)[0]
+        miss = 1.25 * burst  # the localized effect: a change of height, not of time
+        r0, r1, resp = w * (miss + noise), w * noise, w * draws(32)
+        found_both += stats.weighted_noise_model_test(r0, r1, w * out_sigma, resp,
+                                                      w)[1] <= 0.005
+        found_w += stats.noise_model_test(r0, r1, w * out_sigma, resp)[1] <= 0.005
+    print(f"found at p <= 0.005: both statistics {found_both}, weighted alone {found_w}")
+    assert found_both >= 60 and found_w <= 0.75 * found_both, (found_both, found_w)
+
+
 def test_input_noise_mc_test_holds_its_level_when_one_model_filters_the_noise() -> None:
     # two models equally right but for how they pass the input's noise: model 1 low-passes
     # it (a drive of lower bandwidth), so on every realization it fits the noisy data

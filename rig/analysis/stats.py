@@ -112,6 +112,33 @@ def noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
     return z, 0.5 * math.erfc(z / math.sqrt(2))
 
 
+def weighted_noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
+                              input_responses: np.ndarray | None, weights: np.ndarray
+                              ) -> tuple[float, float]:
+    """``noise_model_test`` on residuals weighed per sample (``r0``, ``r1``, ``out_sigma``
+    and the rows of ``input_responses`` all times ``weights``), taken twice, as given and
+    with the weights divided out, and the smaller p doubled (Bonferroni over the two
+    statistics, so that on noise alone the level holds whatever the two's dependence):
+    (the z of the smaller p, that p doubled, at most 1).
+
+    A diagonal weighting, 1 / the noise model's SD per sample, takes the noise as
+    independent from sample to sample; the force's noise moves a blow's prediction in a
+    few correlated directions (mostly in time), so where it is large in variance (the
+    strike, the catch) it hides a change of another shape less than the weight says: a
+    short, localized effect there loses the power of the samples that show it. The
+    unweighted statistic keeps it; the weighted one keeps the power that samples swamped by
+    noise (a long window's return) would take from the unweighted one."""
+    w = np.asarray(weights, float)
+    z_w, p_w = noise_model_test(r0, r1, out_sigma, input_responses)
+    if w.shape != np.shape(r0) or not np.all(w > 0):
+        return z_w, p_w
+    resp = None if input_responses is None else np.asarray(input_responses, float) / w
+    z_1, p_1 = noise_model_test(np.asarray(r0, float) / w, np.asarray(r1, float) / w,
+                                np.asarray(out_sigma, float) / w, resp)
+    z, p = (z_w, p_w) if p_w <= p_1 else (z_1, p_1)
+    return z, min(1.0, 2.0 * p)
+
+
 def input_noise_mc_test(r0: np.ndarray, r1: np.ndarray, responses0: np.ndarray,
                         responses1: np.ndarray, out_sigma: np.ndarray | None = None
                         ) -> tuple[float, float]:

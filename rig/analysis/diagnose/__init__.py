@@ -30,10 +30,15 @@ set holding one is taken without the whole-blow alignment. Off by default
 With ``weights="noise"`` every residual of the diagnosis (fits, scores, tests, the
 remainder) is weighed by a noise model of the data under the base model
 (``fit.noise_weights``: white output noise plus the model's response to the input force's
-noise, the squared weights' mean 1 in each trial's channel): where the force's noise moves
-the prediction most (the key's return in a long window), a sample says least about the
-model. The default, ``weights="none"``, weighs every sample alike: on short two-blow
-windows the weighting cost the held-out test power (docs/workflow.md).
+noise, the squared weights' median 1 in each trial's channel): where the force's noise
+moves the prediction most (the key's return in a long window), a sample says least about
+the model. The held-out noise-model tests then take both the weighted and the unweighted
+statistic and double the smaller p (``stats.weighted_noise_model_test``): the weights treat
+the force's noise as independent from sample to sample, while it moves a blow in a few
+correlated directions, so a short effect at the strike or the catch keeps its power in the
+unweighted statistic. The default, ``weights="none"``, weighs every sample alike: the
+weighted default is measured (docs/performance.md) but not yet run through the whole
+slow tier (docs/workflow.md).
 
 A candidate counts as significant only when all hold:
 - it lowers the training error and removes at least ``min_gain`` of the held-out

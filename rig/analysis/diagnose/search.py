@@ -84,6 +84,18 @@ def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
     return max(zs) if zs else math.inf
 
 
+def noise_p(test: ft.Data, r0: np.ndarray, r1: np.ndarray,
+            responses: np.ndarray | None) -> float:
+    """The held-out p that ``r1`` is smaller in mean square than ``r0`` on ``test`` by the
+    noise-model test (``responses``: the input force's noise through ``r0``'s model):
+    ``stats.noise_model_test``, or on weighted data ``stats.weighted_noise_model_test``
+    (the weighted and the unweighted statistic, the smaller p doubled)."""
+    w = test.weight_vector()
+    if w is None:
+        return stats.noise_model_test(r0, r1, test.noise_vector(), responses)[1]
+    return stats.weighted_noise_model_test(r0, r1, test.noise_vector(), responses, w)[1]
+
+
 def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, test: ft.Data,
                        state: State, max_nfev: int, min_gain: float, min_noise_gain: float,
                        scan: int = 4) -> Candidate:
@@ -123,8 +135,7 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     ch_rem = {c: (1 - cand[c][0] / cur[c][0]) if cur[c][0] > 0 else 0.0 for c in cur}
     gain = max(cur[c][1] - cand[c][1] for c in cur)
     if state.test_noise_draws is not None:
-        _, p = stats.noise_model_test(state.test_resid, resid, test.noise_vector(),
-                                      state.test_noise_draws)
+        p = noise_p(test, state.test_resid, resid, state.test_noise_draws)
     else:
         _, p = stats.improvement_test(state.test_resid, resid, test.segments())
     train_gain = 1 - train_cost / state.train_cost if state.train_cost > 0 else 0.0
@@ -194,7 +205,7 @@ def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
         resid = test.residuals(preds)
         resp = ft.input_noise_responses(model, test, r0=resid) if noise else None
         if resp is not None:
-            _, p = stats.noise_model_test(resid, c.test_resid, test.noise_vector(), resp)
+            p = noise_p(test, resid, c.test_resid, resp)
         else:
             _, p = stats.improvement_test(resid, c.test_resid, test.segments())
         if p <= level:
@@ -233,8 +244,7 @@ def held_out_p(base: ActionModel, by_name: Mapping[str, type[Effect]], test: ft.
                     model = _set_model(base, by_name, b.effects or (b.name,), b.values,
                                        test.measurements[0].rate)
                     resp = ft.input_noise_responses(model, test, r0=b.test_resid)
-                    out = stats.noise_model_test(b.test_resid, a.test_resid,
-                                                 test.noise_vector(), resp)[1]
+                    out = noise_p(test, b.test_resid, a.test_resid, resp)
                 except (ValueError, RuntimeError, FloatingPointError,
                         np.linalg.LinAlgError):
                     out = 1.0
