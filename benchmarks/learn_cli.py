@@ -26,7 +26,11 @@ the learning trials (p99, max, missed ticks), how far the load cell's force lagg
 demand (the drive's own lag is a few ms), and in how many cycles of the learning trials
 and the next run the loop read an older sample than the recorded one (the plant process
 behind real time; the maximum error of those late reads, ``commands/measured_force``, is
-printed beside for the next run). Issue 41's targets: kept median
+printed beside for the next run). Then the record is played once more on the same rig
+with a noise-free load cell (``sim.load_cell_noise_n: 0``; the seed's true calibration and
+plant): the table's own error, and from it the chance that the load cell's noise (white,
+0.22 N) takes a plain run beyond 3 % (``beyond``); their sum over the runs is how many of
+the next runs above 3 % the noise alone explains. Issue 41's targets: kept median
 <= 2.5 %, worst <= 3 %; next run <= 3 %. Seeds 101 and up are the benchmark's block, never
 used by the tests (tests/test_tracking.py uses seeds 1-5).
 """
@@ -46,12 +50,14 @@ import numpy as np
 
 from rig.control import ilc
 from rig.inputs import config, profiles
+from rig.loop import backends
 from rig.recordings import runfile
 from rig.services import learn as learn_svc
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = Path(sys.executable).with_name("rig")
 ROW = re.compile(r"^\s*(\d+)\s+([\d.]+)\s+([\d.]+)\s+\S+\.h5$")
+TARGET_PCT = 3.0   # issue 41: the next plain run's maximum error, % of the peak
 KEPT = re.compile(r"learned feedforward: trial (\d+) .*noise spread, ([\d.]+) %")
 
 
@@ -59,6 +65,19 @@ def plain_error(path: Path, profile: profiles.Profile, hz: float) -> dict[str, f
     t = learn_svc.grid(profile, hz)
     ref = np.array([profile.at(x) for x in t])
     return ilc.errors(ref, learn_svc.load_cell_at_cycles(path, t.size), profile.peak)
+
+
+def beyond(error: np.ndarray, sigma: float, limit: float) -> float:
+    """The chance that a run whose noise-free error is ``error`` (N) reads a maximum error
+    beyond ``limit`` (N) on a load cell with white noise ``sigma`` (N): 1 - prod_j P(|e_j +
+    w_j| <= limit)."""
+    from scipy.stats import norm
+
+    e = np.asarray(error, float)
+    if sigma <= 0:
+        return float(np.abs(e).max() > limit)
+    inside = norm.cdf((limit - e) / sigma) - norm.cdf((-limit - e) / sigma)
+    return float(1.0 - np.prod(inside))
 
 
 def late_reads(path: Path, n: int) -> int:
@@ -135,6 +154,21 @@ def one(seed: int, n: int, profile_path: Path, folder: Path,
     prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     again = plain_error(folder / "again.h5", prof, cfg.rates.control_hz)
     t_grid = learn_svc.grid(prof, cfg.rates.control_hz)
+    # the table's own error: the record played once more on the same rig with a noise-free
+    # load cell (the seed's true calibration and plant; only the noise off), and the chance
+    # that the load cell's noise takes a plain run with it beyond the 3 % target
+    quiet_yaml = folder / "quiet.yaml"
+    quiet_yaml.write_text(rig_yaml.read_text().replace(
+        f"sim: {{seed: {seed}}}", f"sim: {{seed: {seed}, load_cell_noise_n: 0}}"))
+    res3 = subprocess.run([str(RIG), "run", str(profile_path), "--rig", str(quiet_yaml),
+                           "-o", str(folder / "quiet.h5"), *step],
+                          capture_output=True, text=True, timeout=600)
+    if res3.returncode != 0 or "using the learned feedforward" not in res3.stdout:
+        raise SystemExit(f"seed {seed}: the noise-free run did not use the record\n"
+                         f"{res3.stdout}")
+    ref = np.array([prof.at(x) for x in t_grid])
+    own = ref - learn_svc.load_cell_at_cycles(folder / "quiet.h5", t_grid.size)
+    p_over = beyond(own, backends.load_cell_noise_n(cfg), TARGET_PCT / 100.0 * prof.peak)
     seen = ilc.errors(np.array([prof.at(x) for x in t_grid]),
                       learn_svc.measured_force(folder / "again.h5", t_grid.size), prof.peak)
     return {"seed": seed, "trials": rows, "kept": kept, "kept_max": kept_max,
@@ -144,7 +178,8 @@ def one(seed: int, n: int, profile_path: Path, folder: Path,
             "p99_ms": float(np.percentile(lateness, 99)), "max_ms": float(lateness.max()),
             "missed": missed, "lag_s": lag, "stopped": stop_m[1] if stop_m else "",
             "late_learn": late, "late_next": late_reads(folder / "again.h5", t_grid.size),
-            "next_seen_max": seen["max_pct"]}
+            "next_seen_max": seen["max_pct"],
+            "own_max": 100.0 * float(np.abs(own).max()) / prof.peak, "p_over": p_over}
 
 
 def main() -> None:
@@ -187,10 +222,16 @@ def main() -> None:
               f"{r['max_ms']:.1f} ms, {r['missed']} missed ticks, load-cell force behind the "
               f"demand by up to {1e3 * float(r['lag_s']):.0f} ms in the learning trials; "
               f"late reads {r['late_learn']} cycles in the learning trials, {r['late_next']} "
-              f"in the next run (its error by the loop's reads {r['next_seen_max']:.2f} %)",
+              f"in the next run (its error by the loop's reads {r['next_seen_max']:.2f} %); "
+              f"the table's own error (noise-free load cell) {r['own_max']:.2f} %, chance "
+              f"of a plain run beyond {TARGET_PCT:g} % {100 * float(r['p_over']):.1f} %",
               flush=True)
     kept = [float(r["kept_max"]) for r in out]  # type: ignore[arg-type]
     nxt = [float(r["next_max"]) for r in out]  # type: ignore[arg-type]
+    own = [float(r["own_max"]) for r in out]  # type: ignore[arg-type]
+    print(f"the tables' own error (noise-free load cell): median {statistics.median(own):.2f} "
+          f"%, worst {max(own):.2f} %; plain runs expected beyond {TARGET_PCT:g} % by the "
+          f"noise alone: {sum(float(r['p_over']) for r in out):.2f} of {len(out)}")  # type: ignore[arg-type]
     print(f"kept: median {statistics.median(kept):.2f} %, worst {max(kept):.2f} % "
           f"(targets 2.5 / 3 %); next run: median {statistics.median(nxt):.2f} %, worst "
           f"{max(nxt):.2f} % (target 3 %); kept worse than an earlier trial: "
