@@ -231,7 +231,7 @@ def main() -> None:
     own = [float(r["own_max"]) for r in out]  # type: ignore[arg-type]
     print(f"the tables' own error (noise-free load cell): median {statistics.median(own):.2f} "
           f"%, worst {max(own):.2f} %; plain runs expected beyond {TARGET_PCT:g} % by the "
-          f"noise alone: {sum(float(r['p_over']) for r in out):.2f} of {len(out)}")  # type: ignore[arg-type]
+          f"noise alone: {sum(float(r['p_over']) for r in out):.2f} of {len(out)}")  # type: ignore[arg-type, misc]
     print(f"kept: median {statistics.median(kept):.2f} %, worst {max(kept):.2f} % "
           f"(targets 2.5 / 3 %); next run: median {statistics.median(nxt):.2f} %, worst "
           f"{max(nxt):.2f} % (target 3 %); kept worse than an earlier trial: "
