@@ -280,19 +280,30 @@ def test_the_sticking_rig_weighs_every_worked_press_alike_by_the_travel_rule(stu
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "issue 40, open: the worked sticking action goes down 3.4 g under rig touch's press from "
-    "rest (46.74 +- 0.76 g against 50.10 g, 3 trials) and comes back 1.1 g under its up "
-    "force at the stroke's end (18.94 +- 0.83 g against 20.08 g): the action's state after "
-    "a press is not the assembled rest rig touch starts from (docs/touch.md)"))
-def test_the_sticking_rig_measures_rig_touchs_weights_from_rest_within_its_spread(
-        stuck) -> None:
-    """The acceptance criterion: the sticking simulated rig's down- and up-weight (travel
-    rule, after the conditioning press) within the spread the measurement reports of `rig
-    touch`'s down force at the stroke's start and up force at its end, the figures a press
-    from rest measures (``Touch.from_rest``)."""
+def test_the_sticking_rig_measures_the_worked_keys_down_weight_within_its_spread(stuck) -> None:
+    """The acceptance criterion, down: the sticking simulated rig's down-weight (travel rule,
+    after the conditioning press) within the spread the measurement reports of `rig touch`'s
+    worked key (``Touch.worked_key``: a press from the rest a press and its return leave,
+    the force where the key has gone 0.25 mm from that rest). The press from the assembled
+    rest (``Touch.from_rest``) is over 2 g further off: the worked key is lighter."""
     result, _, _, res = stuck
-    ref = res.from_rest()
-    f = result.figures
-    for name in ("down_weight", "up_weight"):
-        assert abs(f[name]["mean_g"] - ref[name]) <= f[name]["spread_g"], (name, f[name], ref)
+    ref, first = res.worked_key(), res.from_rest()
+    f = result.figures["down_weight"]
+    assert abs(f["mean_g"] - ref["down_weight"]) <= f["spread_g"], (f, ref)
+    assert abs(f["mean_g"] - first["down_weight"]) - abs(f["mean_g"] - ref["down_weight"]) > 2
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "issue 40, open: the sticking rig's worked key comes back up 1.1 g under rig touch's "
+    "worked key (18.94 +- 0.83 g against 20.04 g, 3 trials): the rig's key runs down to its "
+    "stop and stays there with the jack off its whippen stop (contact 5 open 0.73 mm, "
+    "ActionModel.simulate), while the quasi-static press pushes the jack back onto it by 4.25 "
+    "mm (docs/touch.md, \"The worked key\")"))
+def test_the_sticking_rig_measures_the_worked_keys_up_weight_within_its_spread(stuck) -> None:
+    """The acceptance criterion, up: the sticking simulated rig's up-weight within its
+    reported spread of `rig touch`'s worked key's up force one step back from the turn."""
+    result, _, _, res = stuck
+    ref = res.worked_key()
+    f = result.figures["up_weight"]
+    assert abs(f["mean_g"] - ref["up_weight"]) <= f["spread_g"], (f, ref)

@@ -112,7 +112,7 @@ def touch_metrics(model: Any) -> tuple[float, ...]:
     from rig.model import touch
 
     try:
-        fig = touch.measure(model).figures
+        fig = touch.measure(model, worked=False).figures  # (the worked key's: not a metric)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         return (math.nan,) * len(TOUCH_METRICS)
     return tuple(float(fig[m.name.removesuffix("_g")]) for m in TOUCH_METRICS)

@@ -260,6 +260,13 @@ def touch(
         shown = f"{value:7.2f} {units}" if units == "g" else f"{value:7.3f}  "
         console.print(f"{name:<18} {shown}{newtons:<13}  {tm.FIGURE_DOCS[name]}",
                       markup=False, highlight=False, soft_wrap=True)
+    if res.worked:
+        w = res.worked_key()
+        console.print(f"worked key: down {w['down_weight']:.2f} g at {w['down_dip_m'] * 1e3:.2f} "
+                      f"mm, up {w['up_weight']:.2f} g at {w['up_dip_m'] * 1e3:.2f} mm (a press "
+                      f"after a press and its return, from its rest at "
+                      f"{w['rest_dip_m'] * 1e3:.3f} mm; what rig measure touch reads)",
+                      markup=False, highlight=False, soft_wrap=True)
     console.print(f"key front: {res.key_front_radius_m * 1e3:.1f} mm from the balance pin; "
                   f"stroke {res.dip_m[0] * 1e3:.2f}-{res.dip_m[-1] * 1e3:.2f} mm of key-front "
                   f"dip, ended by: {res.stroke_end}", markup=False, highlight=False,

@@ -34,7 +34,10 @@ tolerances per step and without the static hump (B1, F1), solved by continuation
 10^4 times wider tolerances down (each solve starting from the wider one's answer, the
 slips of what sticks shrunk with the width); a step that finds no equilibrium so starts
 again from steps in which one pin or one contact sticks (the jack that the knuckle's
-friction drags off its stop on the return, with a weak repetition spring).
+friction drags off its stop on the return, with a weak repetition spring). The worked key
+(``Touch.worked_key``): the key let go after that return (the force held at zero, friction
+carried over) comes to a rest of its own, and a second press from there gives the weights
+a press of a worked key measures.
 Forces in N; weights in grams-force (N / G0 x 1000).
 """
 
@@ -115,6 +118,22 @@ class Touch:
     down_states: np.ndarray = field(default_factory=lambda: np.empty(0))
     up_states: np.ndarray = field(default_factory=lambda: np.empty(0))
     turn_force_n: float = math.nan
+    # the worked key's press (``_worked``): its rest, its down press's dips and forces to the
+    # turn, the up force one step back; empty when not computed
+    worked: dict[str, Any] = field(default_factory=dict)
+
+    def worked_key(self) -> dict[str, float]:
+        """What a slow press of a worked key measures, in grams-force at the key front (and
+        the dips, m): the key pressed down through its stroke and let go back to rest first,
+        the friction's state carried over; then the down force where it has gone the
+        stroke's first step (0.25 mm) from that rest and the up force one step back from
+        where the press stops (docs/touch.md, "The worked key")."""
+        w = self.worked
+        if not w:
+            raise ValueError("the worked key's press was not computed (measure(worked=True))")
+        return {"down_weight": grams(w["down_N"][0]), "up_weight": grams(w["up_N"]),
+                "down_dip_m": w["dip_m"][0], "up_dip_m": w["up_dip_m"],
+                "rest_dip_m": w["rest_dip_m"]}
 
     def from_rest(self) -> dict[str, float]:
         """What a slow press from rest measures, in grams-force at the key front (and the
@@ -138,6 +157,11 @@ class Touch:
                        "end": self.stroke_end},
             "friction_shares_g": self.friction_shares_g,
             "method": self.method,
+            **({"worked": {**self.worked_key(), "stroke": {
+                "dip_m": self.worked["dip_m"][:-1], "down_N": self.worked["down_N"]},
+                "turn_dip_m": self.worked["turn_dip_m"],
+                "turn_force_N": self.worked["turn_force_N"],
+                "up_N": self.worked["up_N"]}} if self.worked else {}),
         }
 
 
@@ -185,6 +209,9 @@ class _Statics:
         self.mass = self.ws.M[np.ix_(self.coords, self.coords)].copy()
         self.keytop_rest = self.keytop_y(self.rest)
         self.dy = np.zeros(k.NY)
+        # which sticking start (``_sticking_starts``' index) balanced the last step that
+        # needed one: tried first on the next step, from its increments
+        self.stuck_start: int | None = None
         self.ids = list(model.packed.contact_ids)
         # the striking felt's centre in the head frame and the strain gauge (as ActionModel)
         tree = model.build.params.tree
@@ -266,13 +293,15 @@ class _Statics:
         return y.copy(), float(sol.x[-1]), float(np.max(np.abs(r)))
 
     def step(self, dip: float, prev: np.ndarray, guess: np.ndarray, f0: float,
-             hint: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+             hint: np.ndarray | None = None,
+             held: float | None = None) -> tuple[np.ndarray, float, float]:
         """One implicit step of the press with friction: (state, key force N, worst
         generalized-force imbalance N m) in equilibrium with the key front at ``dip``,
         reached from the state ``prev`` in STEP_S seconds, each friction evaluated at the
         slip of the step (the state's speeds are the step's increments over STEP_S).
         ``hint``: the previous step's increments and force, tried first (what stuck then
-        mostly sticks now)."""
+        mostly sticks now). ``held``: a key force (N) to hold instead of the dip (the key
+        let go to it: the dip is then the answer's, ``dip`` only the guess's)."""
         from scipy.optimize import root
 
         k, c, ws, dy = self.k, self.coords, self.ws, self.dy
@@ -288,7 +317,8 @@ class _Statics:
             # the generalized forces' imbalance (the accelerations times the rest state's
             # mass matrix; the same root), each coordinate's in N m per its scale
             return np.r_[(self.mass @ dy[k.NQ + c]) * self.scale,
-                         (self.keytop_y(y) - target) * 1e3]
+                         (self.keytop_y(y) - target) * 1e3 if held is None
+                         else x[-1] - held]
 
         def jacobian(x: np.ndarray, arrays: Any, widen: float) -> np.ndarray:
             # central differences a hundredth of the tolerance wide: they resolve a stuck
@@ -320,9 +350,19 @@ class _Statics:
             return x, r
 
         r = np.full(c.size + 1, np.inf)
+        again = self.stuck_start
+        self.stuck_start = None
         if hint is not None:
             x, r = _newton(lambda x: residual(x, self.sliding),
                            lambda x: jacobian(x, self.sliding, 1.0), hint.copy(), 8)
+            if np.max(np.abs(r)) > FORCE_TOL and again is not None:
+                # the previous step balanced from a sticking start: the same element
+                # sticking, from the previous step's increments, first
+                tries = self._sticking_starts(hint, prev)
+                if again < len(tries):
+                    x_new, r_new = ladder(tries[again])
+                    if np.max(np.abs(r_new)) <= FORCE_TOL:
+                        x, r, self.stuck_start = x_new, r_new, again
         starts = [np.r_[guess[c] - prev[c], f0]] if hint is None else [
             hint.copy(), np.r_[guess[c] - prev[c], f0]]
         for start in starts:
@@ -333,11 +373,12 @@ class _Statics:
             # elsewhere (a jack the knuckle's friction drags off its stop). Start again
             # from steps in which one joint or one contact sticks (its slip zeroed by one
             # coordinate's increment) and keep the first that reaches an equilibrium.
-            for x_try in self._sticking_starts(x, prev):
+            for n_try, x_try in enumerate(self._sticking_starts(x, prev)):
                 x_new, r_new = ladder(x_try)
                 if np.max(np.abs(r_new)) < np.max(np.abs(r)):
                     x, r = x_new, r_new
                 if np.max(np.abs(r)) <= FORCE_TOL:
+                    self.stuck_start = n_try
                     break
         residual(x, self.sliding)  # leave the state at x
         ws.qx[:] = 0.0
@@ -491,8 +532,10 @@ def _strike_weight(st: _Statics) -> tuple[float, float]:
     return -side * moment / length, mass
 
 
-def measure(model: ActionModel) -> Touch:
-    """The touch figures of ``model`` (docs/touch.md)."""
+def measure(model: ActionModel, worked: bool = True) -> Touch:
+    """The touch figures of ``model`` (docs/touch.md); ``worked``: also the worked key's
+    press (``Touch.worked``: the press after a press and its return; `rig sweep --touch`
+    leaves it out)."""
     st = _Statics(model)
     k = st.k
     g = float(model.packed.arrays.sp[k.S_G])
@@ -576,6 +619,8 @@ def measure(model: ActionModel) -> Touch:
     if worst > FORCE_TOL:
         raise InputError(f"model: {failed}: no quasi-static equilibrium with every friction "
                          f"at its sliding limit, so the touch weights are undefined")
+    worked_press = _worked(st, down_at, down_path, np.r_[down, turn_force], up_path[0],
+                           float(up[0])) if worked else {}
     shares = _friction_shares(st, down_path[mid], float(down[mid]))
     dw, uw = float(down[mid]), float(up[mid])
     sw, hammer_mass = _strike_weight(st)
@@ -600,7 +645,7 @@ def measure(model: ActionModel) -> Touch:
     return Touch(figures=figures, newtons=newtons, dip_m=dip, down_n=down, up_n=up,
                  frictionless_n=np.array(forces), stroke_end=end, key_front_radius_m=r_front,
                  friction_shares_g=shares, down_states=np.array(down_path),
-                 up_states=np.array(up_path), turn_force_n=turn_force,
+                 up_states=np.array(up_path), turn_force_n=turn_force, worked=worked_press,
                  method={"g0_m_s2": G0, "model_gravity_m_s2": g, "step_m": STEP_M,
                          "first_m": FIRST_M, "press_speed_m_s": PRESS_SPEED,
                          "slip_tolerance_m": SLIP_TOL_M, "turn_tolerance_rad": TURN_TOL_RAD,
@@ -609,6 +654,54 @@ def measure(model: ActionModel) -> Touch:
                          "mid_stroke_dip_m": float(dip[mid]),
                          "down_stroke_at_dip_m": float(dip[int(np.argmax(down))]),
                          "up_stroke_at_dip_m": float(dip[int(np.argmin(up))])})
+
+
+def _worked(st: _Statics, down_at: np.ndarray, down_path: list[np.ndarray],
+            down_f: np.ndarray, back: np.ndarray, f_back: float) -> dict[str, Any]:
+    """The worked key's press: the state the first press and its return leave (``back``,
+    the up press at the stroke's first point, its force ``f_back``) let go to no key force
+    (the key comes back to rest, friction carried over), then a press from that rest down
+    through the stroke to the turn (the first point ``FIRST_M`` below that rest, then the
+    stroke's points ``down_at``; the first press's states and forces guide each step) and
+    back one step (the up force at the stroke's last point). The weights a press of a
+    worked key measures by the travel rule (docs/touch.md, "The worked key")."""
+    c = st.coords
+    rest, f_rest, err = st.step(0.0, back, st.rest, f_back, held=0.0)
+    if err > FORCE_TOL:
+        raise InputError("model: the key let go after its first press finds no rest with "
+                         "friction at its sliding limit, so the worked key's weights are "
+                         "undefined")
+    rest_dip = st.keytop_rest - st.keytop_y(rest)
+    first = rest_dip + FIRST_M
+    # the stroke's points from the first past the worked rest's first point, to the turn
+    later = [i for i in range(len(down_at)) if down_at[i] > first + STEP_M / 2]
+    dips = np.r_[first, down_at[later]]
+    refs = [down_path[max(later[0] - 1, 0)], *(down_path[i] for i in later)]
+    ref_f = np.r_[down_f[max(later[0] - 1, 0)], down_f[later]]
+    forces = np.empty(dips.size)
+    prev, prev_ref, f_prev, ref_prev, d_prev = rest, st.rest, 0.0, 0.0, rest_dip
+    hint = None
+    for i, d_i in enumerate(dips):
+        y_i, f_i, err = _advance(st, d_prev, float(d_i), prev, prev + (refs[i] - prev_ref),
+                                 f_prev + ref_f[i] - ref_prev, hint if i > 1 else None)
+        if err > FORCE_TOL:
+            raise InputError(f"model: {_why(st, refs[i], y_i, f_i, float(d_i), 'worked down')}"
+                             f": no quasi-static equilibrium with every friction at its "
+                             f"sliding limit, so the worked key's weights are undefined")
+        hint = np.r_[y_i[c] - prev[c], f_i]
+        forces[i] = f_i
+        prev, prev_ref, f_prev, ref_prev, d_prev = y_i, refs[i], f_i, ref_f[i], float(d_i)
+    # back one step from the turn: the up force at the stroke's last point
+    d_up = float(down_at[-2])
+    y_up, f_up, err = _advance(st, d_prev, d_up, prev, down_path[-2] + (prev - down_path[-1]),
+                               f_prev, None)
+    if err > FORCE_TOL:
+        raise InputError(f"model: {_why(st, down_path[-2], y_up, f_up, d_up, 'worked up')}: "
+                         f"no quasi-static equilibrium with every friction at its sliding "
+                         f"limit, so the worked key's weights are undefined")
+    return {"rest_dip_m": float(rest_dip), "dip_m": dips.tolist(),
+            "down_N": forces[:-1].tolist(), "turn_dip_m": float(dips[-1]),
+            "turn_force_N": float(forces[-1]), "up_dip_m": d_up, "up_N": float(f_up)}
 
 
 def _advance(st: _Statics, d_from: float, d_to: float, prev: np.ndarray, guess: np.ndarray,
