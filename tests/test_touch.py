@@ -419,6 +419,8 @@ def test_flexible_shank_statics_match_the_rigid_ones(base):
     flex = touch.measure(ActionModel(effects=["flexible_shank"]))
     for name in ("down_weight", "up_weight", "down_weight_stroke", "up_weight_stroke"):
         assert flex.figures[name] == pytest.approx(base.figures[name], abs=0.05), name
+    for name in ("down_weight", "up_weight"):  # the worked key's too (47.01 / 47.04 g down)
+        assert flex.worked_key()[name] == pytest.approx(base.worked_key()[name], abs=0.05), name
     assert flex.stroke_end == base.stroke_end
     # the shank's mass is in its Gauss points now: density x area x length
     assert flex.figures["hammer_mass"] == pytest.approx(base.figures["hammer_mass"], abs=0.01)

@@ -666,7 +666,17 @@ def _worked(st: _Statics, down_at: np.ndarray, down_path: list[np.ndarray],
     back one step (the up force at the stroke's last point). The weights a press of a
     worked key measures by the travel rule (docs/touch.md, "The worked key")."""
     c = st.coords
-    rest, f_rest, err = st.step(0.0, back, st.rest, f_back, held=0.0)
+    # let go from the stroke's first point; where that step finds no equilibrium (the
+    # flexible shank's), the key is first taken up by the dip to half and a quarter of it
+    d_back = float(down_at[0])
+    while True:
+        rest, f_rest, err = st.step(0.0, back, st.rest, f_back, held=0.0)
+        if err <= FORCE_TOL or d_back < FIRST_M / 5:
+            break
+        back, f_back, err = _advance(st, d_back, d_back / 2, back, back, f_back, None)
+        d_back /= 2
+        if err > FORCE_TOL or f_back <= 0:
+            break
     if err > FORCE_TOL:
         raise InputError("model: the key let go after its first press finds no rest with "
                          "friction at its sliding limit, so the worked key's weights are "
