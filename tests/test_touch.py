@@ -484,3 +484,18 @@ def test_a_worked_key_weighs_what_the_sticking_simulation_measures_after_a_press
     # onto its back felt; 43 um let go quasi-statically)
     assert min(rests) > 10e-6 and worked["rest_dip_m"] > 10e-6, (rests, worked)
     assert max(abs(r - worked["rest_dip_m"]) for r in rests) < 20e-6, (rests, worked)
+
+
+def test_a_worked_key_without_an_answer_leaves_the_other_figures(monkeypatch, base):
+    """Where the worked key's press finds no equilibrium, measure keeps the first press's
+    figures and says why (method.worked_key_failed), and worked_key() refuses."""
+    def no_answer(*args, **kwargs):
+        raise InputError("model: worked down press at 0.29 mm of key-front dip: no answer")
+
+    monkeypatch.setattr(touch, "_worked", no_answer)
+    res = touch.measure(ActionModel())
+    assert res.figures == base.figures and not res.worked
+    assert "worked down press" in res.method["worked_key_failed"]
+    assert "worked" not in res.to_json()
+    with pytest.raises(ValueError, match="not computed"):
+        res.worked_key()

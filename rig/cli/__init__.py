@@ -267,6 +267,9 @@ def touch(
                       f"after a press and its return, from its rest at "
                       f"{w['rest_dip_m'] * 1e3:.3f} mm; what rig measure touch reads)",
                       markup=False, highlight=False, soft_wrap=True)
+    elif "worked_key_failed" in res.method:
+        console.print(f"worked key: not computed ({res.method['worked_key_failed']})",
+                      markup=False, highlight=False, soft_wrap=True)
     console.print(f"key front: {res.key_front_radius_m * 1e3:.1f} mm from the balance pin; "
                   f"stroke {res.dip_m[0] * 1e3:.2f}-{res.dip_m[-1] * 1e3:.2f} mm of key-front "
                   f"dip, ended by: {res.stroke_end}", markup=False, highlight=False,

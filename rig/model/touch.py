@@ -619,8 +619,14 @@ def measure(model: ActionModel, worked: bool = True) -> Touch:
     if worst > FORCE_TOL:
         raise InputError(f"model: {failed}: no quasi-static equilibrium with every friction "
                          f"at its sliding limit, so the touch weights are undefined")
-    worked_press = _worked(st, down_at, down_path, np.r_[down, turn_force], up_path[0],
-                           float(up[0])) if worked else {}
+    worked_press: dict[str, Any] = {}
+    worked_failed = ""
+    if worked:  # (a worked key without an answer leaves the first press's figures standing)
+        try:
+            worked_press = _worked(st, down_at, down_path, np.r_[down, turn_force],
+                                   up_path[0], float(up[0]))
+        except InputError as exc:
+            worked_failed = str(exc)
     shares = _friction_shares(st, down_path[mid], float(down[mid]))
     dw, uw = float(down[mid]), float(up[mid])
     sw, hammer_mass = _strike_weight(st)
@@ -653,7 +659,8 @@ def measure(model: ActionModel, worked: bool = True) -> Touch:
                          "contacts_changed": _changes(st, dip, down_path[:n], up_path),
                          "mid_stroke_dip_m": float(dip[mid]),
                          "down_stroke_at_dip_m": float(dip[int(np.argmax(down))]),
-                         "up_stroke_at_dip_m": float(dip[int(np.argmin(up))])})
+                         "up_stroke_at_dip_m": float(dip[int(np.argmin(up))]),
+                         **({"worked_key_failed": worked_failed} if worked_failed else {})})
 
 
 def _worked(st: _Statics, down_at: np.ndarray, down_path: list[np.ndarray],
