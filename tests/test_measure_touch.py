@@ -57,15 +57,21 @@ def test_a_trial_is_one_profile_of_slow_ramps() -> None:
     assert r.segments() == {"down": (0.5, 23.0), "up": (24.0, 54.0)}
 
 
-def test_the_start_is_where_the_dip_leaves_its_elastic_trend() -> None:
-    """A synthetic ramp: the dip creeps linearly (felt), then the key goes at t = 3.0 s with
-    a parabola; the force rises 0.02 N/s with noise. The start is found within the
-    encoder's tolerance of 3.0 s and its force from the fitted ramp."""
+def synthetic_ramp() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(time s, dip m, force N): the dip creeps linearly (felt), then the key goes at
+    t = 3.0 s with a parabola, on 0.5 um counts; the force rises 0.02 N/s with noise."""
     rng = np.random.default_rng(0)
     t = np.arange(0, 6, 5e-4)
     dip = 1e-6 * t + np.where(t > 3.0, 2e-3 * (t - 3.0) ** 2, 0.0)
     dip = np.round(dip / 5e-7) * 5e-7
-    force = 0.3 + 0.02 * t + rng.normal(0, 0.2, t.size)
+    return t, dip, 0.3 + 0.02 * t + rng.normal(0, 0.2, t.size)
+
+
+def test_the_start_is_where_the_dip_leaves_its_elastic_trend() -> None:
+    """A synthetic ramp: the dip creeps linearly (felt), then the key goes at t = 3.0 s with
+    a parabola; the force rises 0.02 N/s with noise. The start is found within the
+    encoder's tolerance of 3.0 s and its force from the fitted ramp."""
+    t, dip, force = synthetic_ramp()
     s = ct.find_start(t, dip, force, (0.0, 6.0), +1, ct.Ramps(), 5e-7, "synthetic")
     # 10 counts (5 um) off the trend: (t - 3)^2 = 2.5e-3 -> 0.05 s after the start
     assert s.time_s == pytest.approx(3.05, abs=0.002)
@@ -83,11 +89,7 @@ def test_the_travel_rule_reads_the_force_where_the_key_has_gone_the_threshold() 
     start when 2e-3 (t - 3)^2 + 1e-6 t = 2.5e-4, t = 3.3512 s (3.3515 s on the 0.5 um
     counts); the travel rule's weight is the fitted ramp's force there, the onset rule's at
     3.05 s."""
-    rng = np.random.default_rng(0)
-    t = np.arange(0, 6, 5e-4)
-    dip = 1e-6 * t + np.where(t > 3.0, 2e-3 * (t - 3.0) ** 2, 0.0)
-    dip = np.round(dip / 5e-7) * 5e-7
-    force = 0.3 + 0.02 * t + rng.normal(0, 0.2, t.size)
+    t, dip, force = synthetic_ramp()
     s = ct.find_start(t, dip, force, (0.0, 6.0), +1, ct.Ramps(), 5e-7, "synthetic")
     assert s.ref_dip_m == 0.0
     assert s.went_s == pytest.approx(3.3515, abs=2e-4)
