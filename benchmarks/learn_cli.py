@@ -136,10 +136,11 @@ def one(seed: int, n: int, profile_path: Path, folder: Path,
     cfg = config.load(rig_yaml)
     # the loop's timing in the learning trials: how far the real-time figures are the loop's
     lat, missed, lag, late = [], 0, 0.0, 0
-    n_cycles = learn_svc.grid(profiles.load(profile_path, force_limit=cfg.limits.max_force_n),
-                              cfg.rates.control_hz).size
+    prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
+    t_grid = learn_svc.grid(prof, cfg.rates.control_hz)
+    ref = np.array([prof.at(x) for x in t_grid])
     for k, _, _ in rows:
-        late += late_reads(folder / f"learn-learn{k}.h5", n_cycles)
+        late += late_reads(folder / f"learn-learn{k}.h5", t_grid.size)
         tr = runfile.read(folder / f"learn-learn{k}.h5").trials[0]
         lat.append(np.asarray(tr.commands["lateness"], float))
         missed += int(np.sum(tr.commands["missed"]))
@@ -151,9 +152,7 @@ def one(seed: int, n: int, profile_path: Path, folder: Path,
                           capture_output=True, text=True, timeout=600)
     if res2.returncode != 0 or "using the learned feedforward" not in res2.stdout:
         raise SystemExit(f"seed {seed}: the plain run did not use the record\n{res2.stdout}")
-    prof = profiles.load(profile_path, force_limit=cfg.limits.max_force_n)
     again = plain_error(folder / "again.h5", prof, cfg.rates.control_hz)
-    t_grid = learn_svc.grid(prof, cfg.rates.control_hz)
     # the table's own error: the record played once more on the same rig with a noise-free
     # load cell (the seed's true calibration and plant; only the noise off), and the chance
     # that the load cell's noise takes a plain run with it beyond the 3 % target
@@ -166,11 +165,9 @@ def one(seed: int, n: int, profile_path: Path, folder: Path,
     if res3.returncode != 0 or "using the learned feedforward" not in res3.stdout:
         raise SystemExit(f"seed {seed}: the noise-free run did not use the record\n"
                          f"{res3.stdout}")
-    ref = np.array([prof.at(x) for x in t_grid])
     own = ref - learn_svc.load_cell_at_cycles(folder / "quiet.h5", t_grid.size)
     p_over = beyond(own, backends.load_cell_noise_n(cfg), TARGET_PCT / 100.0 * prof.peak)
-    seen = ilc.errors(np.array([prof.at(x) for x in t_grid]),
-                      learn_svc.measured_force(folder / "again.h5", t_grid.size), prof.peak)
+    seen = ilc.errors(ref, learn_svc.measured_force(folder / "again.h5", t_grid.size), prof.peak)
     return {"seed": seed, "trials": rows, "kept": kept, "kept_max": kept_max,
             "kept_rms": kept_rms, "spread": spread, "worse_kept": worse_kept,
             "next_max": again["max_pct"], "next_rms": again["rms_pct"],
