@@ -499,3 +499,68 @@ def test_a_worked_key_without_an_answer_leaves_the_other_figures(monkeypatch, ba
     assert "worked" not in res.to_json()
     with pytest.raises(ValueError, match="not computed"):
         res.worked_key()
+
+
+def test_a_return_from_the_stop_starts_where_a_press_in_time_left_the_key():
+    """``stop_returns``: the shipped model pressed in time (every friction sticking) from
+    rest by 0 -> 44 g in 0.5 s and 2 g/s to 58 g, held 1 s: the key runs through let-off
+    down to the front punching (contact 2, 9.9 mm) with the jack tripped off its whippen
+    stop (contact 5 open over 2 mm), and the force lowered slowly from there lets it come
+    0.25 mm up at 22.6 g: under the force held, over the worked key's 20.0 g. The same
+    model, its friction laws already Dahl's, gives the same returns; a time outside the
+    profile is refused."""
+    g = 9.80665e-3
+    t = np.array([0.0, 0.5, 7.5, 8.5])
+    f = np.array([0.0, 44.0, 58.0, 58.0]) * g
+    model = ActionModel()
+    (r,) = touch.stop_returns(model, t, f, [8.5])
+    assert r["held_n"] == pytest.approx(58 * g)
+    assert r["penetration_m"][2] > 0 and r["penetration_m"][5] < -2e-3, r
+    assert r["up_dip_m"] == pytest.approx(r["stop_dip_m"] - touch.FIRST_M)
+    assert 9.5e-3 < r["stop_dip_m"] < 10.5e-3
+    assert r["up_weight"] == pytest.approx(22.6, abs=0.3)
+    assert r["up_n"] == pytest.approx(r["up_weight"] * g)
+    stuck = ActionModel(touch.sticking_parameters(model.params))
+    (again,) = touch.stop_returns(stuck, t, f, [8.5])
+    assert again["up_weight"] == pytest.approx(r["up_weight"], abs=1e-9)
+    with pytest.raises(InputError, match="at_s"):
+        touch.stop_returns(model, t, f, [9.0])
+
+
+@pytest.mark.slow
+def test_the_return_from_the_stop_weighs_what_the_simulations_ramp_down_reads():
+    """``stop_returns`` against an independent reading: the sticking model simulated in time
+    under three presses 44 -> 58 -> 14 g at 2 g/s, let go to 0 g between them, comes up by
+    the travel rule on its ramps down (22.30, 19.12, 18.63 g); the quasi-static returns from
+    the ends of the same holds agree within 0.3 g each, the first from the front punching,
+    the two later ones from the drop screw with the jack off its whippen stop."""
+    from rig.calibration import touch as ct
+    from rig.inputs import profiles
+
+    model = _sticking_model()
+    ramps = ct.Ramps(from_g=44.0, to_g=58.0, low_g=14.0, rate_g_s=2.0)
+    knots = ramps.knots()
+    period = knots[-1][0] + 0.5
+    points = []
+    for i in range(3):
+        points += [[i * period + t, f] for t, f in knots]
+        points.append([i * period + knots[-1][0] + 0.3, 0.0])
+    points.append([3 * period, 0.0])
+    pts = np.array(points)
+    sim = model.simulate(profiles.from_points(points, name="presses", description="",
+                                              source="test", force_limit=50.0,
+                                              max_duration=1e3))
+    assert sim.success, sim.message
+    t, dip = sim.time, sim.channels["key_dip"]
+    force = np.interp(t, pts[:, 0], pts[:, 1])
+    returns = touch.stop_returns(model, pts[:, 0], pts[:, 1],
+                                 [i * period + knots[3][0] for i in range(3)])
+    for i, r in enumerate(returns):
+        on = (t >= i * period) & (t < (i + 1) * period)
+        up = ct.find_start(t[on] - i * period, dip[on], force[on], ramps.segments()["up"], -1,
+                           ramps, 5e-7, f"press {i}")
+        assert abs(r["up_weight"] - ct.grams(up.went_force_n)) < 0.3, (i, r, up)
+        assert r["stop_dip_m"] == pytest.approx(up.ref_dip_m, abs=2e-5)
+    assert returns[0]["penetration_m"][2] > 0
+    for r in returns[1:]:
+        assert r["penetration_m"][11] > 0 and r["penetration_m"][5] < -0.3e-3, r

@@ -265,7 +265,8 @@ def touch(
         console.print(f"worked key: down {w['down_weight']:.2f} g at {w['down_dip_m'] * 1e3:.2f} "
                       f"mm, up {w['up_weight']:.2f} g at {w['up_dip_m'] * 1e3:.2f} mm (a press "
                       f"after a press and its return, from its rest at "
-                      f"{w['rest_dip_m'] * 1e3:.3f} mm; what rig measure touch reads)",
+                      f"{w['rest_dip_m'] * 1e3:.3f} mm; rig measure touch's down-weight is "
+                      "compared with it)",
                       markup=False, highlight=False, soft_wrap=True)
     elif "worked_key_failed" in res.method:
         console.print(f"worked key: not computed ({res.method['worked_key_failed']})",

@@ -37,7 +37,11 @@ again from steps in which one pin or one contact sticks (the jack that the knuck
 friction drags off its stop on the return, with a weak repetition spring). The worked key
 (``Touch.worked_key``): the key let go after that return (the force held at zero, friction
 carried over) comes to a rest of its own, and a second press from there gives the weights
-a press of a worked key measures.
+a press of a worked key measures. The return from where a press in time leaves the key
+(``stop_returns``): the model, every friction element sticking, simulated under a force
+profile, and from its state at the stop the force lowered quasi-statically as above (the
+key that runs into its stop leaves the jack off its whippen stop; docs/touch.md, "The
+up-weight after a press in time").
 Forces in N; weights in grams-force (N / G0 x 1000).
 """
 
@@ -65,6 +69,7 @@ TURN_TOL_RAD = 1e-9  # a pin turning less than this in a step sticks
 NEWTON_TOL = 1e-12  # N m: Newton's steps stop under this imbalance
 FORCE_TOL = 1e-8  # N m: the largest generalized-force imbalance a step with friction may leave
 SPLITS = 3  # a step that finds no equilibrium is halved up to this many times
+RETURN_STEPS = 10  # the return from the stop takes the travel threshold in this many steps
 LADDER = (1e4, 1e3, 1e2, 1e1, 1.0)  # the tolerances' continuation, widest first
 # contacts that end the touch stroke when they close (ids of rig/data/action-parameters.yaml)
 STROKE_STOPS = {2: "key meets the front punching", 8: "jack toe meets the let-off button",
@@ -719,6 +724,81 @@ def _worked(st: _Statics, down_at: np.ndarray, down_path: list[np.ndarray],
     return {"rest_dip_m": float(rest_dip), "dip_m": dips.tolist(),
             "down_N": forces[:-1].tolist(), "turn_dip_m": float(dips[-1]),
             "turn_force_N": float(forces[-1]), "up_dip_m": d_up, "up_N": float(f_up)}
+
+
+def sticking_parameters(params: Any) -> Any:
+    """A copy of ``params`` with Dahl's law at every pin and at every contact with friction
+    but one whose bristle law already sticks (the back check's): an action whose every
+    friction element sticks, as `sim.friction: stick` makes the simulated rig's."""
+    from rig.model.assembly import JOINTS
+
+    out = params.copy()
+    laws = out.tree.get("friction_law", {}).get("contact", {})
+    for c in out.tree["contacts"]:
+        cid = int(c["id"])
+        if c["A"] > 0 and laws.get(cid) != "bristle":
+            out.set(f"friction_law.contact.{cid}", "dahl")
+    for pin in JOINTS:
+        out.set(f"friction_law.joint.{pin}", "dahl")
+    return out
+
+
+def stop_returns(model: ActionModel, time_s: np.ndarray, force_n: np.ndarray,
+                 at_s: list[float], threshold_m: float = FIRST_M) -> list[dict[str, Any]]:
+    """The up-weights a slow return from the key's stop measures after presses in time
+    (docs/touch.md, "The up-weight after a press in time"): the model with every friction
+    element sticking (``sticking_parameters``) simulated in time (``ActionModel`` 's
+    integrator) from its rest under the key-front force profile (``time_s`` s, ``force_n``
+    N, piecewise linear); at each time of ``at_s`` (the key held at its stop) its state is
+    taken and the force then lowered quasi-statically (``_Statics``, friction carried over):
+    the key taken up ``threshold_m`` from where it stood in ``RETURN_STEPS`` steps (the
+    stop's felts and the stuck joints first give back what the held force compressed, then
+    the key comes up). Each return: the force
+    there (``up_weight`` g, ``up_n`` N), where the key stood (``stop_dip_m``) and came to
+    (``up_dip_m``), the force held (``held_n``) and each contact's penetration at the stop
+    (``penetration_m`` by contact id: < 0 open)."""
+    from rig.model.action import ActionModel, Stepper
+
+    t = np.asarray(time_s, float)
+    f = np.asarray(force_n, float)
+    if t.ndim != 1 or t.shape != f.shape or t.size < 2 or np.any(np.diff(t) <= 0):
+        raise InputError("the force profile: expected increasing times and as many forces")
+    if not at_s or any(not t[0] < a <= t[-1] for a in at_s) or np.any(np.diff(at_s) <= 0):
+        raise InputError("at_s: expected increasing times within the force profile")
+    pressed = ActionModel(sticking_parameters(model.params), effects=model.effects)
+    st = _Statics(pressed)
+    stepper = Stepper(pressed, pressed.rest_state(), keep_history=False)
+    out = []
+    for at in at_s:
+        stepper.advance_table(float(at), t, f)
+        if stepper.status != 0:
+            raise InputError(f"model: the presses in time stopped: {stepper.message}")
+        held = float(np.interp(at, t, f))
+        out.append(_stop_return(st, stepper.y, held, threshold_m))
+    return out
+
+
+def _stop_return(st: _Statics, y: np.ndarray, held: float,
+                 threshold_m: float) -> dict[str, Any]:
+    """The quasi-static return from the state ``y`` (the key at its stop under ``held`` N,
+    the first step's guess): ``stop_returns``' one return."""
+    k = st.k
+    stop = y[: k.NY].copy()
+    stop[k.NQ : k.NY] = 0.0
+    d_stop = st.keytop_rest - st.keytop_y(stop)
+    pen = st.outputs(stop, st.sliding)[k.O_PEN]
+    y_i, f_i, d_prev = stop, held, d_stop
+    for i in range(1, RETURN_STEPS + 1):
+        d_i = d_stop - threshold_m * i / RETURN_STEPS
+        y_i, f_i, err = _advance(st, d_prev, d_i, y_i, y_i, f_i, None)
+        if err > FORCE_TOL:
+            raise InputError(f"model: {_why(st, y_i, y_i, f_i, d_i, 'return')}: no "
+                             f"quasi-static equilibrium with every friction at its sliding "
+                             f"limit, so the return from the stop is undefined")
+        d_prev = d_i
+    return {"up_weight": grams(f_i), "up_n": f_i, "stop_dip_m": float(d_stop),
+            "up_dip_m": float(d_prev), "held_n": held,
+            "penetration_m": {cid: float(p) for cid, p in zip(st.ids, pen, strict=True)}}
 
 
 def _advance(st: _Statics, d_from: float, d_to: float, prev: np.ndarray, guess: np.ndarray,

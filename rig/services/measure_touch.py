@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rig.calibration import records
 from rig.calibration import touch as ct
@@ -27,6 +27,11 @@ from rig.errors import InputError, RigError
 from rig.inputs.config import RigConfig
 from rig.recordings import runfile
 from rig.services import run as run_svc
+
+if TYPE_CHECKING:
+    from rig.model.action import ActionModel
+
+LET_GO_S = 0.05  # s: the key force down from low_g to none after a trial (the drive's step)
 
 
 def count_m(cfg: RigConfig) -> float:
@@ -92,6 +97,35 @@ def measure_touch(cfg: RigConfig, ramps: ct.Ramps, *, trials: int = 5,
         extra={"settings": ramps.__dict__ | {"key_encoder_count_m": count},
                "run_file": str(rep.path)})
     return result, records.write(records_folder(cfg, folder), rec), rep.path
+
+
+def model_returns(model: ActionModel, cfg: RigConfig, ramps: ct.Ramps, *,
+                  trials: int = 5) -> list[dict[str, Any]]:
+    """What `rig measure touch` of ``cfg`` with ``ramps`` and ``trials`` presses the
+    model's key to, and what a slow return from each stop then measures
+    (rig.model.touch.stop_returns; docs/touch.md, "The up-weight after a press in time"):
+    the same presses in time as the rig's run -- per trial ``loop.settle_s`` at no force,
+    the ramps' profile, the force down to none in ``LET_GO_S`` and ``loop.rest_s`` at none,
+    the conditioning presses first -- and the quasi-static return from where each recorded
+    press holds the key at its stop (the end of its hold at ``to_g``). One return per
+    recorded trial."""
+    import numpy as np
+
+    from rig.model import touch
+
+    knots = ramps.knots()
+    end = knots[-1][0]
+    period = cfg.loop.settle_s + end + cfg.loop.rest_s
+    points: list[tuple[float, float]] = []
+    for i in range(ramps.condition + trials):
+        start = i * period + cfg.loop.settle_s
+        points += [(start + t, f) for t, f in knots]
+        points.append((start + end + LET_GO_S, 0.0))
+    points.append(((ramps.condition + trials) * period, 0.0))
+    t, f = np.array(points).T
+    holds = [i * period + cfg.loop.settle_s + knots[3][0]
+             for i in range(ramps.condition, ramps.condition + trials)]
+    return touch.stop_returns(model, t, f, holds, threshold_m=ramps.threshold_mm * 1e-3)
 
 
 def _key_encoder(cfg: RigConfig) -> str:

@@ -19,7 +19,7 @@ from rig.errors import InputError
 from rig.inputs.config import RigConfig
 from rig.inputs.params import Parameters
 from rig.model.action import ActionModel
-from rig.model.assembly import JOINTS
+from rig.model.touch import sticking_parameters
 from rig.sensors import table as sensor_table
 from rig.sim_backend.drive_model import DriveResponse
 from rig.sim_backend.drive_state import DriveState, DriveStatus
@@ -32,12 +32,7 @@ def sim_parameters(config: RigConfig) -> Parameters:
     bristle law already sticks)."""
     params = Parameters.default()
     if config.sim.friction == "stick":
-        for c in params.tree["contacts"]:
-            cid = int(c["id"])
-            if c["A"] > 0 and params.tree["friction_law"]["contact"].get(cid) != "bristle":
-                params.set(f"friction_law.contact.{cid}", "dahl")
-        for pin in JOINTS:
-            params.set(f"friction_law.joint.{pin}", "dahl")
+        params = sticking_parameters(params)
     return params
 
 
