@@ -17,6 +17,7 @@ from rig.calibration import records
 from rig.calibration import touch as ct
 from rig.cli import app
 from rig.inputs import config
+from rig.inputs.params import Parameters
 from rig.model import touch
 from rig.model.action import ActionModel
 from rig.recordings import runfile
@@ -143,6 +144,21 @@ def test_cli_refuses_bad_input_in_one_line(tmp_path: Path) -> None:
     assert not list(tmp_path.glob("*.h5")) and not (tmp_path / "calibrations").exists()
 
 
+def test_cli_refuses_a_bad_model_before_any_press(tmp_path: Path) -> None:
+    """`--model` is read before the rig is touched: a bad file is one line naming it, exit
+    2, no press run and nothing written."""
+    rig_yaml = tmp_path / "rig.yaml"
+    rig_yaml.write_text(sim(tmp_path).to_yaml())
+    bad = tmp_path / "heavy.yaml"
+    bad.write_text("parameters:\n  bodies:\n    hammer_head: {mass: heavy}\n")
+    res = CliRunner().invoke(app, ["measure", "touch", "--rig", str(rig_yaml),
+                                   "--model", str(bad)])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("error")]
+    assert len(lines) == 1 and "heavy.yaml" in lines[0] and "mass" in lines[0], res.output
+    assert not list(tmp_path.glob("*.h5")) and not (tmp_path / "calibrations").exists()
+
+
 def test_an_existing_out_is_refused_without_force(tmp_path: Path) -> None:
     cfg = calibrated(tmp_path)
     out = tmp_path / "mine.h5"
@@ -151,6 +167,14 @@ def test_an_existing_out_is_refused_without_force(tmp_path: Path) -> None:
         svc.measure_touch(cfg, RAMPS, trials=3, out=out)
     assert out.read_bytes() == b"the user's"
     assert not list((tmp_path / "calibrations").glob("touch-*.json"))
+
+
+def validate_document(doc: dict) -> None:
+    """``doc`` against docs/json.md's rig.measure-touch/1 schema."""
+    jsonschema = pytest.importorskip("jsonschema")
+    text = (ROOT / "docs" / "json.md").read_text()
+    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
+    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.measure-touch/1"))
 
 
 @pytest.fixture(scope="module")
@@ -229,10 +253,7 @@ def test_the_record_is_written_and_later_runs_embed_it(measured, tmp_path: Path)
                                      f"{dw['spread_g']:.2f}", f"({dw['mean_n']:.4f}"]
     doc = json.loads(json.dumps(svc.document(result, record, run_file)))
     assert doc["record"] == str(record)
-    jsonschema = pytest.importorskip("jsonschema")
-    text = (ROOT / "docs" / "json.md").read_text()
-    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
-    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.measure-touch/1"))
+    validate_document(doc)
 
 
 # the sticking simulated rig's presses: from under where the key starts to creep (about 44 g)
@@ -316,3 +337,35 @@ def test_the_sticking_rig_measures_the_up_weight_its_presses_leave_within_its_sp
     model_g = float(np.mean([r["up_weight"] for r in returns]))
     f = result.figures["up_weight"]
     assert abs(f["mean_g"] - model_g) <= f["spread_g"], (f, returns)
+
+
+@pytest.mark.slow
+def test_the_presses_are_compared_with_a_model_and_a_heavier_hammer_is_told(stuck) -> None:
+    """`rig measure touch --model` (``svc.compare_model``): the sticking rig's presses
+    against the base model -- the action the rig plays -- agree within the measured spread
+    for both weights, the down-weight being `rig touch`'s worked key; against a model
+    whose hammer head is 25 % heavier, the measured down-weight is below the model's by
+    more than the spread, and the lines say so."""
+    result, _, _, res = stuck
+    cfg = sim(Path("."), "stick")
+    same = svc.compare_model(ActionModel(), cfg, result)
+    assert same["down_weight"]["model_g"] == pytest.approx(res.worked_key()["down_weight"],
+                                                           abs=0.05)
+    for name in ("down_weight", "up_weight"):
+        c = same[name]
+        assert c["measured_g"] == result.figures[name]["mean_g"]
+        assert c["measured_minus_model_g"] == pytest.approx(c["measured_g"] - c["model_g"])
+        assert c["within_spread"], same
+    assert len(same["up_weight"]["model_per_trial_g"]) == len(result.trials)
+    heavy = Parameters.default()
+    heavy.update({"bodies.hammer_head.mass": 0.00792 * 1.25}, source="test")
+    other = svc.compare_model(ActionModel(heavy), cfg, result)
+    d = other["down_weight"]
+    assert d["model_g"] > same["down_weight"]["model_g"] + 2 * d["spread_g"]
+    assert d["measured_minus_model_g"] < -d["spread_g"] and not d["within_spread"]
+    lines = svc.comparison_lines(other, Path("heavy.yaml"))
+    assert lines[0] == "against the model heavy.yaml:"
+    assert lines[1].split()[:4] == ["down_weight", "model", f"{d['model_g']:.2f}", "g,"]
+    assert "beyond the measured spread" in lines[1]
+    doc = json.loads(json.dumps(svc.document(result, Path("r.json"), Path("r.h5"), other)))
+    validate_document(doc)

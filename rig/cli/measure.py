@@ -45,10 +45,20 @@ def measure_touch(
     operator: _OperatorOpt = None,
     records_dir: _RecordsOpt = None,
     json_out: _JsonOpt = False,
+    model: Annotated[Path | None, typer.Option(
+        "--model", "-m", help="a model YAML to compare with: its down-weight (rig touch's "
+                              "worked key) and the up-weight the same presses leave on it")
+    ] = None,
 ) -> None:
     """Slow force ramps on the key: down-weight, up-weight, balance weight, friction."""
     from rig.calibration.touch import Ramps
+    from rig.model.action import ActionModel
     from rig.services import measure_touch as svc
+
+    try:  # a bad model file stops before the presses
+        action = ActionModel.from_yaml(model) if model is not None else None
+    except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+        raise _fail(exc) from None
 
     if json_out:  # (the document alone on stdout)
         from rig.inputs import config as rig_config
@@ -71,10 +81,22 @@ def measure_touch(
             on_line=None if json_out else _say)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
+    cmp: dict | None = None
+    failed: Exception | None = None
+    if action is not None:  # the measurement is recorded: a model that fails loses nothing
+        try:
+            cmp = svc.compare_model(action, cfg, result)
+        except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
+            failed = exc
     if json_out:
-        _emit_json(svc.document(result, record, run_file))
-        return
-    for line in svc.summary(result):
-        _say(line)
-    _say(f"run file {run_file}")
-    _say(f"wrote {record}")
+        _emit_json(svc.document(result, record, run_file, cmp))
+    else:
+        for line in svc.summary(result):
+            _say(line)
+        if cmp is not None:
+            for line in svc.comparison_lines(cmp, model):
+                _say(line)
+        _say(f"run file {run_file}")
+        _say(f"wrote {record}")
+    if failed is not None:
+        raise _fail(failed) from None

@@ -128,6 +128,53 @@ def model_returns(model: ActionModel, cfg: RigConfig, ramps: ct.Ramps, *,
     return touch.stop_returns(model, t, f, holds, threshold_m=ramps.threshold_mm * 1e-3)
 
 
+def compare_model(model: ActionModel, cfg: RigConfig, result: ct.TouchMeasurement
+                  ) -> dict[str, Any]:
+    """`rig measure touch --model`: the model's down- and up-weight for the presses just
+    measured, beside the measured ones. Down: `rig touch`'s worked key (a slow press after
+    a press and its return, the force where the key has gone its first 0.25 mm). Up: the
+    rig's own presses in time on the model (``model_returns``: settle, the ramps, the
+    conditioning presses first), then the force lowered from where each recorded press
+    holds the key at its stop -- the stop, and so the up-weight, depends on how the key was
+    pressed down (docs/touch.md, "The up-weight after a press in time"). Each figure:
+    ``model_g``, ``measured_g``, their difference ``measured_minus_model_g`` and whether it
+    is within the measurement's spread (``within_spread``); the up-weight also has the
+    model's own spread over the presses (2 sd, ``model_spread_g``)."""
+    import numpy as np
+
+    from rig.model import touch
+
+    down = touch.measure(model).worked_key()["down_weight"]
+    ups = np.array([r["up_weight"] for r in model_returns(model, cfg, result.ramps,
+                                                          trials=len(result.trials))])
+    out: dict[str, Any] = {}
+    for name, value, how in (
+            ("down_weight", float(down), "rig touch's worked key"),
+            ("up_weight", float(ups.mean()), "the rig's presses in time on the model, "
+                                             "then a slow return from each stop")):
+        f = result.figures[name]
+        diff = f["mean_g"] - value
+        out[name] = {"model_g": value, "measured_g": f["mean_g"], "spread_g": f["spread_g"],
+                     "measured_minus_model_g": diff,
+                     "within_spread": bool(abs(diff) <= f["spread_g"]), "how": how}
+    out["up_weight"]["model_spread_g"] = float(2 * ups.std(ddof=1)) if ups.size > 1 else 0.0
+    out["up_weight"]["model_per_trial_g"] = [float(u) for u in ups]
+    return out
+
+
+def comparison_lines(cmp: dict[str, Any], model_file: Path | None) -> list[str]:
+    """Lines for the terminal: each weight measured against the model's."""
+    lines = [f"against the model {model_file if model_file else '(the base model)'}:"]
+    for name in ("down_weight", "up_weight"):
+        c = cmp[name]
+        spread = (f" +- {c['model_spread_g']:.2f}" if "model_spread_g" in c else "")
+        verdict = "within" if c["within_spread"] else "beyond"
+        lines.append(f"  {name:<14}model {c['model_g']:6.2f} g{spread}, measured minus model "
+                     f"{c['measured_minus_model_g']:+.2f} g: {verdict} the measured spread "
+                     f"({c['spread_g']:.2f} g); model: {c['how']}")
+    return lines
+
+
 def _key_encoder(cfg: RigConfig) -> str:
     return next(n for n, e in cfg.channels.encoders.items() if e.channel_name == "key_dip")
 
@@ -158,10 +205,12 @@ def summary(result: ct.TouchMeasurement) -> list[str]:
     return lines
 
 
-def document(result: ct.TouchMeasurement, record: Path, run_file: Path) -> dict[str, Any]:
-    """`rig measure touch --json`'s document (schema rig.measure-touch/1, docs/json.md)."""
+def document(result: ct.TouchMeasurement, record: Path, run_file: Path,
+             model: dict[str, Any] | None = None) -> dict[str, Any]:
+    """`rig measure touch --json`'s document (schema rig.measure-touch/1, docs/json.md);
+    ``model``: ``compare_model``'s comparison (``--model``), else null."""
     return {"schema": "rig.measure-touch/1", "figures": result.figures,
             "per_trial_g": result.per_trial_g(), "rule": result.ramps.rule,
             "conditioning_presses": result.ramps.condition,
             "load_cell_zero_g": result.load_cell_zero_g,
-            "record": str(record), "run_file": str(run_file)}
+            "record": str(record), "run_file": str(run_file), "model": model}
