@@ -258,7 +258,8 @@ def test_a_correlated_valley_is_searched_and_its_minima_widen_the_interval(
         tmp_path: Path, monkeypatch) -> None:
     """The drive's delay and bandwidth trade off (only their total lag is pinned down): the
     final set is refitted from other starts along its valley and scored along it, said in a
-    note; the stated uncertainties never shrink and the values stay the final fit's.
+    note; the stated uncertainties never shrink, and the values move only to a restart's
+    minimum with less training error, said in a note, whose interval spans the first's.
     Without the starts, the same diagnosis gives the curvature uncertainties alone."""
     truth = ActionModel(effects=[{"drive_dynamics": truth_values(BUILTIN["drive_dynamics"])}])
     meas = make_run(tmp_path / "run.h5", truth, False, seed=102)
@@ -273,8 +274,19 @@ def test_a_correlated_valley_is_searched_and_its_minima_widen_the_interval(
     assert with_valley.chosen_names == without.chosen_names == ["drive_dynamics"]
     a, b = with_valley.final, without.final
     assert a is not None and b is not None
-    assert a.values == b.values
-    assert all(a.sigma[k] >= b.sigma[k] for k in a.values)
+    moved = [n for n in with_valley.notes if n.startswith("refitted from other starts")
+             and not n.endswith("the first fit stays")]  # (a cheaper minimum refused)
+    if a.values != b.values:
+        # a restart found a minimum with less training error that is not the input
+        # noise's (weighted, seed 102: 4.78 ms, 838 Hz against the first fit's 3.92 ms,
+        # 199 Hz): the values move only with a note that says so, and the interval
+        # then spans the first fit's values too
+        assert moved, with_valley.notes
+        for k in a.values:
+            assert abs(a.values[k] - b.values[k]) <= 1.96 * a.sigma[k], (k, a.values, a.sigma)
+    else:
+        assert not moved
+        assert all(a.sigma[k] >= b.sigma[k] for k in a.values)
     assert any(n.startswith("valley of drive_dynamics.delay and drive_dynamics.bandwidth")
                for n in with_valley.notes)
     assert not any(n.startswith("valley") for n in without.notes)
