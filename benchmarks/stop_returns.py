@@ -73,12 +73,7 @@ def check(model: ActionModel) -> None:
 
     ramps = ct.Ramps(from_g=44.0, to_g=58.0, low_g=14.0, rate_g_s=2.0)
     knots = ramps.knots()
-    period = knots[-1][0] + 0.5
-    points = []
-    for i in range(3):
-        points += [[i * period + t, f] for t, f in knots]
-        points.append([i * period + knots[-1][0] + 0.3, 0.0])
-    points.append([3 * period, 0.0])
+    points, period = ramps.presses(3)
     pts = np.array(points)
     pressed = ActionModel(touch.sticking_parameters(model.params), output_rate=2000.0)
     sim = pressed.simulate(profiles.from_points(points, name="presses", description="",

@@ -58,6 +58,19 @@ def test_a_trial_is_one_profile_of_slow_ramps() -> None:
     assert r.segments() == {"down": (0.5, 23.0), "up": (24.0, 54.0)}
 
 
+def test_presses_follow_one_another_each_let_go_to_no_force() -> None:
+    r = ct.Ramps(from_g=25, to_g=70, low_g=10, rate_g_s=2)
+    points, period = r.presses(2, let_go_s=0.3, gap_s=0.5)
+    end = r.knots()[-1][0]
+    assert period == pytest.approx(end + 0.5)
+    t = [p[0] for p in points]
+    assert np.all(np.diff(t) >= 0)
+    assert points[6] == [period, 0.0] and points[5] == [pytest.approx(end + 0.3), 0.0]
+    assert points[-1] == [2 * period, 0.0] and len(points) == 2 * 6 + 1
+    assert points[8][1] == pytest.approx(ct.newtons(70)) and points[8][0] == pytest.approx(
+        period + r.knots()[2][0])
+
+
 def synthetic_ramp() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(time s, dip m, force N): the dip creeps linearly (felt), then the key goes at
     t = 3.0 s with a parabola, on 0.5 um counts; the force rises 0.02 N/s with noise."""

@@ -540,12 +540,7 @@ def test_the_return_from_the_stop_weighs_what_the_simulations_ramp_down_reads():
     model = _sticking_model()
     ramps = ct.Ramps(from_g=44.0, to_g=58.0, low_g=14.0, rate_g_s=2.0)
     knots = ramps.knots()
-    period = knots[-1][0] + 0.5
-    points = []
-    for i in range(3):
-        points += [[i * period + t, f] for t, f in knots]
-        points.append([i * period + knots[-1][0] + 0.3, 0.0])
-    points.append([3 * period, 0.0])
+    points, period = ramps.presses(3)
     pts = np.array(points)
     sim = model.simulate(profiles.from_points(points, name="presses", description="",
                                               source="test", force_limit=50.0,
