@@ -117,17 +117,18 @@ class Ramps:
         return [(0.0, 0.0), (t1, newtons(self.from_g)), (t2, newtons(self.to_g)),
                 (t3, newtons(self.to_g)), (t3 + down, newtons(self.low_g))]
 
-    def presses(self, n: int, let_go_s: float = 0.3, gap_s: float = 0.5
+    def presses(self, n: int, let_go_s: float = 0.3, gap_s: float = 0.5, lead_s: float = 0.0
                 ) -> tuple[list[list[float]], float]:
-        """``n`` trials one after the other, each let go to no force ``let_go_s`` after its
-        ramp down and started ``gap_s`` after that ramp's end: the (time s, force N) points
-        and the period (s)."""
+        """``n`` trials one after the other, each after ``lead_s`` at no force, let go to no
+        force ``let_go_s`` after its ramp down, the next one's lead starting ``gap_s`` after
+        that ramp's end: the (time s, force N) points and the period (s)."""
         knots = self.knots()
-        period = knots[-1][0] + gap_s
+        period = lead_s + knots[-1][0] + gap_s
         points: list[list[float]] = []
         for i in range(n):
-            points += [[i * period + t, f] for t, f in knots]
-            points.append([i * period + knots[-1][0] + let_go_s, 0.0])
+            start = i * period + lead_s
+            points += [[start + t, f] for t, f in knots]
+            points.append([start + knots[-1][0] + let_go_s, 0.0])
         points.append([n * period, 0.0])
         return points, period
 

@@ -113,17 +113,10 @@ def model_returns(model: ActionModel, cfg: RigConfig, ramps: ct.Ramps, *,
 
     from rig.model import touch
 
-    knots = ramps.knots()
-    end = knots[-1][0]
-    period = cfg.loop.settle_s + end + cfg.loop.rest_s
-    points: list[tuple[float, float]] = []
-    for i in range(ramps.condition + trials):
-        start = i * period + cfg.loop.settle_s
-        points += [(start + t, f) for t, f in knots]
-        points.append((start + end + LET_GO_S, 0.0))
-    points.append(((ramps.condition + trials) * period, 0.0))
+    points, period = ramps.presses(ramps.condition + trials, let_go_s=LET_GO_S,
+                                   gap_s=cfg.loop.rest_s, lead_s=cfg.loop.settle_s)
     t, f = np.array(points).T
-    holds = [i * period + cfg.loop.settle_s + knots[3][0]
+    holds = [i * period + cfg.loop.settle_s + ramps.knots()[3][0]
              for i in range(ramps.condition, ramps.condition + trials)]
     return touch.stop_returns(model, t, f, holds, threshold_m=ramps.threshold_mm * 1e-3)
 
