@@ -172,6 +172,41 @@ def test_cli_refuses_a_bad_model_before_any_press(tmp_path: Path) -> None:
     assert not list(tmp_path.glob("*.h5")) and not (tmp_path / "calibrations").exists()
 
 
+@pytest.mark.parametrize(("args", "field"), [
+    (["--presses", "-1"], "--presses"),
+    (["--presses", "2", "--to", "1e6"], "--to"),
+    (["--presses", "2", "--from", "50", "--to", "40"], "--from"),
+    (["--presses", "2", "--rate", "0"], "--rate"),
+    (["--presses", "2", "--rig", "missing-rig.yaml"], "missing-rig.yaml")])
+def test_rig_touch_refuses_presses_it_cannot_make_in_one_line(tmp_path: Path, args: list[str],
+                                                               field: str) -> None:
+    """`rig touch --presses`' settings are checked as `rig measure touch` checks them, before
+    the model is solved: one line naming the option, exit 2, and no plot written."""
+    page = tmp_path / "touch.html"
+    res = CliRunner().invoke(app, ["touch", *args, "--plot", str(page)])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error") and field in lines[0], res.output
+    assert not page.exists()
+
+
+def test_the_presses_are_summed_up_with_where_each_key_stopped() -> None:
+    """``returns_summary``: the mean and 2 sd of the up-weights, and each press's stop named
+    from the stroke stops whose contact is closed (the drop screw, the front punching), its
+    jack's distance off the whippen stop (contact 5 open; 0 when closed)."""
+    def ret(up: float, pen: dict[int, float]) -> dict:
+        return {"up_weight": up, "stop_dip_m": 8e-3, "penetration_m": pen}
+
+    out = svc.returns_summary([ret(19.0, {11: 1e-5, 2: -1e-3, 5: -7e-4}),
+                               ret(21.0, {11: -1e-4, 2: 2e-5, 5: -2.3e-3}),
+                               ret(20.0, {11: -1e-4, 2: -1e-4, 5: 1e-6})])
+    assert out["up_weight_g"] == pytest.approx(20.0)
+    assert out["spread_g"] == pytest.approx(2.0)  # 2 x sd(19, 21, 20) = 2 x 1
+    assert out["stops"] == [touch.STROKE_STOPS[11], touch.STROKE_STOPS[2], "no stop"]
+    assert out["jack_off_stop_m"] == pytest.approx([7e-4, 2.3e-3, 0.0])
+    assert svc.returns_summary([ret(19.0, {11: 1e-5})])["spread_g"] == 0.0
+
+
 def test_an_existing_out_is_refused_without_force(tmp_path: Path) -> None:
     cfg = calibrated(tmp_path)
     out = tmp_path / "mine.h5"
@@ -182,12 +217,17 @@ def test_an_existing_out_is_refused_without_force(tmp_path: Path) -> None:
     assert not list((tmp_path / "calibrations").glob("touch-*.json"))
 
 
+def _schema(name: str) -> dict:
+    """docs/json.md's schema ``name``."""
+    text = (ROOT / "docs" / "json.md").read_text()
+    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
+    return next(s for s in schemas if s["$id"] == name)
+
+
 def validate_document(doc: dict) -> None:
     """``doc`` against docs/json.md's rig.measure-touch/1 schema."""
     jsonschema = pytest.importorskip("jsonschema")
-    text = (ROOT / "docs" / "json.md").read_text()
-    schemas = [json.loads(b) for b in re.findall(r"^```json\n(.*?)^```", text, re.S | re.M)]
-    jsonschema.validate(doc, next(s for s in schemas if s["$id"] == "rig.measure-touch/1"))
+    jsonschema.validate(doc, _schema("rig.measure-touch/1"))
 
 
 @pytest.fixture(scope="module")
@@ -330,26 +370,47 @@ def test_the_sticking_rig_measures_the_worked_keys_down_weight_within_its_spread
 
 
 @pytest.mark.slow
-def test_the_sticking_rig_measures_the_up_weight_its_presses_leave_within_its_spread(
-        stuck) -> None:
-    """The acceptance criterion, up: the sticking simulated rig's up-weight within its
-    reported spread of what the model measures when pressed as the rig presses it
-    (``svc.model_returns``: the same force profile in time, the conditioning press first,
-    every friction element sticking; then the force lowered quasi-statically from where
-    each recorded press holds the key at its stop, the force where it has come 0.25 mm
-    up). The rig's key runs down to the drop screw with momentum and stays there with the
-    jack off its whippen stop; the quasi-static worked key pushes the jack back onto it
-    (docs/touch.md, "The up-weight after a press in time")."""
+def test_the_sticking_rig_measures_what_rig_touch_of_its_model_prints_within_its_spread(
+        stuck, tmp_path: Path) -> None:
+    """The acceptance criterion through the command line: the sticking simulated rig's
+    down- and up-weight each within the spread the measurement reports of what `rig touch`
+    of the same model prints -- the worked key's down-weight, and the up-weight of `rig touch
+    --presses 3` with the measurement's ramps and rig (``svc.model_returns``: the same force
+    profile in time, the conditioning press first, every friction element sticking; then the
+    force lowered quasi-statically from where each recorded press holds the key at its stop,
+    the force where it has come 0.25 mm up). The rig's key runs down to the drop screw with
+    momentum and stays there with the jack off its whippen stop; the quasi-static worked key
+    pushes the jack back onto it (docs/touch.md, "The up-weight after a press in time")."""
     result, _, _, _ = stuck
-    cfg = sim(Path("."), "stick")
-    returns = svc.model_returns(ActionModel(sim_parameters(cfg)), cfg, STICK_RAMPS, trials=3)
-    assert len(returns) == 3
-    for r in returns:  # at the drop screw, the jack off its whippen stop
-        assert r["penetration_m"][11] > 0 and r["penetration_m"][5] < -0.3e-3, r
-        assert r["up_dip_m"] == pytest.approx(r["stop_dip_m"] - 0.25e-3)
-    model_g = float(np.mean([r["up_weight"] for r in returns]))
-    f = result.figures["up_weight"]
-    assert abs(f["mean_g"] - model_g) <= f["spread_g"], (f, returns)
+    rig_yaml = tmp_path / "stick-rig.yaml"
+    rig_yaml.write_text(sim(tmp_path, "stick").to_yaml())
+    model = tmp_path / "base.yaml"
+    model.write_text("effects: []\n")
+    r = STICK_RAMPS
+    args = ["touch", "--model", str(model), "--presses", "3", "--rig", str(rig_yaml),
+            "--from", f"{r.from_g:g}", "--to", f"{r.to_g:g}", "--low", f"{r.low_g:g}",
+            "--rate", f"{r.rate_g_s:g}"]
+    res = CliRunner().invoke(app, [*args, "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    jsonschema = pytest.importorskip("jsonschema")
+    jsonschema.validate(doc, _schema("rig.touch/1"))
+    p = doc["presses"]
+    assert p["presses"] == 3 and p["conditioning_presses"] == 1 and len(p["per_press_g"]) == 3
+    assert p["rest_s"] == 0.2 and p["rig"].startswith(str(rig_yaml))
+    # each at the drop screw, the jack off its whippen stop
+    assert p["stops"] == [touch.STROKE_STOPS[11]] * 3, p
+    assert min(p["jack_off_stop_m"]) > 0.3e-3 and all(7.9e-3 < d < 8.3e-3
+                                                       for d in p["stop_dip_m"]), p
+    for name, model_g in (("down_weight", doc["worked"]["down_weight"]),
+                          ("up_weight", p["up_weight_g"])):
+        f = result.figures[name]
+        assert abs(f["mean_g"] - model_g) <= f["spread_g"], (name, f, model_g)
+    # the quasi-static worked key's up-weight (the jack pushed back onto its stop) is heavier
+    assert doc["worked"]["up_weight"] - p["up_weight_g"] > 0.5
+    text = CliRunner().invoke(app, args)
+    assert text.exit_code == 0, text.output
+    assert f"after 3 presses in time: up-weight {p['up_weight_g']:.2f} g" in text.stdout
 
 
 @pytest.mark.slow

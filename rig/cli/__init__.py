@@ -17,12 +17,18 @@ from rig.cli import measure as _measure  # noqa: F401 - registers rig measure to
 from rig.cli.common import (
     _analysis_progress,
     _bar,
+    _ConditionOpt,
     _effect_names,
     _emit_json,
     _fail,
+    _FromOpt,
     _JsonOpt,
+    _LowOpt,
     _plain,
     _plain_err,
+    _RateOpt,
+    _ThresholdOpt,
+    _ToOpt,
     _warn_unfinished,
     app,
     console,
@@ -237,22 +243,47 @@ def touch(
     force: Annotated[bool, typer.Option("--force", help="replace an existing --plot")] = False,
     accel: Annotated[float, typer.Option(
         "--accel", help="key-front acceleration (m/s^2) whose force to print")] = 10.0,
+    presses: Annotated[int, typer.Option(
+        "--presses", help="also press the model N times in time as rig measure touch "
+                          "presses the key (the ramps below, the loop timing of --rig) and "
+                          "print the up-weight each press's stop gives")] = 0,
+    rig: Annotated[Path | None, typer.Option(
+        "--rig", help="with --presses: the rig config whose loop timing the presses take "
+                      "(default ./rig.yaml, else the built-in simulated rig)")] = None,
+    from_g: _FromOpt = 25.0,
+    to_g: _ToOpt = 70.0,
+    low_g: _LowOpt = 10.0,
+    rate: _RateOpt = 2.0,
+    threshold: _ThresholdOpt = 0.25,
+    condition: _ConditionOpt = 1,
 ) -> None:
     """The action's touch weights at the key front as a technician quotes them (down-, up-,
     balance weight, friction, strike and front weight, key and action ratios; docs/touch.md)."""
+    from rig.calibration.touch import Ramps
+    from rig.inputs import config as rig_config
     from rig.model import touch as tm
     from rig.services import touch as svc
 
+    pressed = None
     try:
         refuse_existing(plot, force, "plot")
+        if presses < 0:
+            raise InputError(f"--presses: expected 0 (none) or more presses, got {presses}")
+        ramps = Ramps(from_g=from_g, to_g=to_g, low_g=low_g, rate_g_s=rate,
+                      threshold_mm=threshold, condition=condition)
+        cfg, said = rig_config.resolve(rig) if presses else (None, "")
+        if cfg is not None:  # the settings are refused before the model is solved
+            ramps.check(cfg.limits.max_force_n)
         m, res = svc.touch(model)
+        if cfg is not None:
+            pressed = svc.presses(m, cfg, ramps, presses, said.removeprefix("rig config: "))
         if plot is not None:
             svc.write_plot(res, plot, f"Key force along a slow press: "
                            f"{model if model else 'base model'}", force)
     except Exception as exc:  # noqa: BLE001 - _fail sorts input from internal errors
         raise _fail(exc) from None
     if as_json:
-        _emit_json(svc.document(m, res, model, accel))
+        _emit_json(svc.document(m, res, model, accel, pressed))
         return
     for name in tm.FIGURES:
         value, units = res.figures[name], tm.UNITS[name]
@@ -282,6 +313,8 @@ def touch(
     console.print(f"acceleration: {accel:g} m/s^2 at the key front needs {push:.3f} N "
                   f"({tm.grams(push):.1f} g) on top of the static force (inertia_mass x a)",
                   markup=False, highlight=False, soft_wrap=True)
+    if pressed is not None:
+        console.print(svc.presses_line(pressed), markup=False, highlight=False, soft_wrap=True)
     if plot is not None:
         console.print(f"wrote {plot}", markup=False, highlight=False, soft_wrap=True)
 

@@ -45,6 +45,21 @@ _JsonOpt = Annotated[bool, typer.Option(
     "--json", help="print one JSON document instead of text (schemas: docs/json.md)")]
 
 
+# the slow force ramps of `rig measure touch` (and of `rig touch --presses`, which presses
+# the model as they press the key): rig.calibration.touch.Ramps
+_FromOpt = Annotated[float, typer.Option(
+    "--from", help="g at the key top where the slow ramp up begins (under the down-weight)")]
+_ToOpt = Annotated[float, typer.Option(
+    "--to", help="g at the key top where the ramp up ends (over the down-weight)")]
+_LowOpt = Annotated[float, typer.Option(
+    "--low", help="g at the key top where the ramp down ends (under the up-weight)")]
+_RateOpt = Annotated[float, typer.Option(help="ramp rate, g per second")]
+_ThresholdOpt = Annotated[float, typer.Option(
+    help="mm of key travel, from its rest / its pressed stop, at which the key has gone")]
+_ConditionOpt = Annotated[int, typer.Option(
+    help="conditioning presses before the recorded trials (not recorded)")]
+
+
 def _emit_json(doc: dict[str, Any]) -> None:
     """One JSON document on stdout (NaN and infinities as null), nothing else."""
     import json

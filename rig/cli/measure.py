@@ -8,7 +8,18 @@ from typing import Annotated
 import typer
 
 from rig.cli.calibrate import _OperatorOpt, _RecordsOpt, _rig_for_calibration, _RigOpt, _say
-from rig.cli.common import _emit_json, _fail, _JsonOpt, app
+from rig.cli.common import (
+    _ConditionOpt,
+    _emit_json,
+    _fail,
+    _FromOpt,
+    _JsonOpt,
+    _LowOpt,
+    _RateOpt,
+    _ThresholdOpt,
+    _ToOpt,
+    app,
+)
 
 measure_app = typer.Typer(no_args_is_help=True,
                           help="Measure the action on the rig; writes a record runs embed.")
@@ -19,23 +30,16 @@ app.add_typer(measure_app, name="measure")
 def measure_touch(
     rig: _RigOpt = None,
     trials: Annotated[int, typer.Option(help="presses (2 or more: the spread)")] = 5,
-    from_g: Annotated[float, typer.Option(
-        "--from", help="g at the key top where the slow ramp up begins (under the "
-                       "down-weight)")] = 25.0,
-    to_g: Annotated[float, typer.Option(
-        "--to", help="g at the key top where the ramp up ends (over the down-weight)")] = 70.0,
-    low_g: Annotated[float, typer.Option(
-        "--low", help="g at the key top where the ramp down ends (under the up-weight)")] = 10.0,
-    rate: Annotated[float, typer.Option(help="ramp rate, g per second")] = 2.0,
-    threshold: Annotated[float, typer.Option(
-        help="mm of key travel, from its rest / its pressed stop, at which the key has "
-             "gone")] = 0.25,
+    from_g: _FromOpt = 25.0,
+    to_g: _ToOpt = 70.0,
+    low_g: _LowOpt = 10.0,
+    rate: _RateOpt = 2.0,
+    threshold: _ThresholdOpt = 0.25,
     rule: Annotated[str, typer.Option(
         help="the weight: travel (the force where the key has gone --threshold), onset (where "
              "it left its elastic trend before it), auto (onset on the simulated rig's "
              "regularised friction, travel on an action that sticks)")] = "auto",
-    condition: Annotated[int, typer.Option(
-        help="conditioning presses before the recorded trials (not recorded)")] = 1,
+    condition: _ConditionOpt = 1,
     out: Annotated[Path | None, typer.Option(
         "--out", "-o", help="the presses' run file (.h5); default <data_folder>/<time>-"
                             "touch-ramps.h5")] = None,

@@ -121,6 +121,29 @@ def model_returns(model: ActionModel, cfg: RigConfig, ramps: ct.Ramps, *,
     return touch.stop_returns(model, t, f, holds, threshold_m=ramps.threshold_mm * 1e-3)
 
 
+def returns_summary(returns: list[dict[str, Any]]) -> dict[str, Any]:
+    """``model_returns``' presses summed up: the up-weights' mean (``up_weight_g``) and
+    spread (2 sd, ``spread_g``; 0 for one press), each press's up-weight
+    (``per_press_g``), where its key stopped (``stops``: the stroke stops whose contact is
+    closed, rig.model.touch.STROKE_STOPS, joined by " and "; "no stop" when none is),
+    its key-front dip there (``stop_dip_m``) and how far its jack stood off its whippen
+    stop (``jack_off_stop_m``: contact 5's opening, 0 when closed)."""
+    import numpy as np
+
+    from rig.model import touch
+
+    ups = np.array([float(r["up_weight"]) for r in returns])
+    stops = [" and ".join(name for cid, name in touch.STROKE_STOPS.items()
+                          if r["penetration_m"].get(cid, -1.0) > 0) or "no stop"
+             for r in returns]
+    return {"up_weight_g": float(ups.mean()),
+            "spread_g": float(2 * ups.std(ddof=1)) if ups.size > 1 else 0.0,
+            "per_press_g": [float(u) for u in ups], "stops": stops,
+            "stop_dip_m": [float(r["stop_dip_m"]) for r in returns],
+            "jack_off_stop_m": [max(0.0, -float(r["penetration_m"].get(5, 0.0)))
+                                for r in returns]}
+
+
 def compare_model(model: ActionModel, cfg: RigConfig, result: ct.TouchMeasurement
                   ) -> dict[str, Any]:
     """`rig measure touch --model`: the model's down- and up-weight for the presses just
@@ -132,26 +155,24 @@ def compare_model(model: ActionModel, cfg: RigConfig, result: ct.TouchMeasuremen
     pressed down (docs/touch.md, "The up-weight after a press in time"). Each figure:
     ``model_g``, ``measured_g``, their difference ``measured_minus_model_g`` and whether it
     is within the measurement's spread (``within_spread``); the up-weight also has the
-    model's own spread over the presses (2 sd, ``model_spread_g``)."""
-    import numpy as np
-
+    model's own spread over the presses (2 sd, ``model_spread_g``): `rig touch --presses`
+    with the same settings prints the same up-weight."""
     from rig.model import touch
 
     down = touch.measure(model).worked_key()["down_weight"]
-    ups = np.array([r["up_weight"] for r in model_returns(model, cfg, result.ramps,
-                                                          trials=len(result.trials))])
+    ups = returns_summary(model_returns(model, cfg, result.ramps, trials=len(result.trials)))
     out: dict[str, Any] = {}
     for name, value, how in (
             ("down_weight", float(down), "rig touch's worked key"),
-            ("up_weight", float(ups.mean()), "the rig's presses in time on the model, "
-                                             "then a slow return from each stop")):
+            ("up_weight", ups["up_weight_g"], "the rig's presses in time on the model, "
+                                              "then a slow return from each stop")):
         f = result.figures[name]
         diff = f["mean_g"] - value
         out[name] = {"model_g": value, "measured_g": f["mean_g"], "spread_g": f["spread_g"],
                      "measured_minus_model_g": diff,
                      "within_spread": bool(abs(diff) <= f["spread_g"]), "how": how}
-    out["up_weight"]["model_spread_g"] = float(2 * ups.std(ddof=1)) if ups.size > 1 else 0.0
-    out["up_weight"]["model_per_trial_g"] = [float(u) for u in ups]
+    out["up_weight"]["model_spread_g"] = ups["spread_g"]
+    out["up_weight"]["model_per_trial_g"] = ups["per_press_g"]
     return out
 
 
