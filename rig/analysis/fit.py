@@ -275,16 +275,14 @@ class Data:
             out[angle] = np.where(sat, d, c * th)
         return out
 
-    def aligned(self, preds: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
-        """Each trial's predictions shifted in time by the one shift (within +-``align_s``)
-        that best matches the masked samples: the input's noise moves a whole blow by a few
-        tenths of a ms from trial to trial, which no model can (or should) explain."""
-        if self.align_s <= 0:
-            return preds
+    def shifts(self, preds: list[dict[str, np.ndarray]]) -> list[float]:
+        """Each trial's shift of its predictions in time (s) that ``aligned`` applies: the
+        one shift on a grid of a tenth of a sample within +-``align_s`` that best matches
+        the masked samples (0 for a trial with no prediction or no masked sample)."""
         out = []
         for i, pred in enumerate(preds):
-            if not pred or not self.masks[i].any():
-                out.append(pred)
+            if self.align_s <= 0 or not pred or not self.masks[i].any():
+                out.append(0.0)
                 continue
             t = self.time[i]
             dt = float(t[1] - t[0]) if t.size > 1 else 1.0
@@ -298,13 +296,34 @@ class Data:
                     sse += float(np.sum(np.where(np.isfinite(r), r, FAILED_PENALTY) ** 2))
                 if sse < best:
                     best, best_tau = sse, float(tau)
-            out.append({c: np.interp(t - best_tau, t, pred[c]) for c in self.channels[i]})
+            out.append(best_tau)
         return out
 
-    def residuals(self, preds: list[dict[str, np.ndarray]]) -> np.ndarray:
-        """Normalized residuals (model - measured) / range on the masked samples (aligned)."""
+    def aligned(self, preds: list[dict[str, np.ndarray]],
+                shifts: Sequence[float] | None = None) -> list[dict[str, np.ndarray]]:
+        """Each trial's predictions shifted in time by the one shift (within +-``align_s``)
+        that best matches the masked samples (``shifts``), or by the given ``shifts``: the
+        input's noise moves a whole blow by a few tenths of a ms from trial to trial, which
+        no model can (or should) explain."""
+        if shifts is None:
+            if self.align_s <= 0:
+                return preds
+            shifts = self.shifts(preds)
+        out = []
+        for i, pred in enumerate(preds):
+            if not pred or not self.masks[i].any():
+                out.append(pred)
+                continue
+            t = self.time[i]
+            out.append({c: np.interp(t - shifts[i], t, pred[c]) for c in self.channels[i]})
+        return out
+
+    def residuals(self, preds: list[dict[str, np.ndarray]],
+                  shifts: Sequence[float] | None = None) -> np.ndarray:
+        """Normalized residuals (model - measured) / range on the masked samples (aligned,
+        or shifted by the given ``shifts``)."""
         parts = []
-        for i, pred in enumerate(self.aligned(preds)):
+        for i, pred in enumerate(self.aligned(preds, shifts)):
             if not self.masks[i].any():
                 continue
             for c in self.channels[i]:
@@ -547,10 +566,12 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             ex.close()
     values = values_of(sol.x)
     sigma, corr = _uncertainty(targets, values, sol.fun, sol.jac, data.segments())
-    if input_noise_draws > 1:
-        extra_cov = input_noise_cov(base, add, targets, values, data, draws=input_noise_draws,
-                                    diff_step=diff_step)
-        if extra_cov is not None:
+    if input_noise_draws > 1:  # both parts from one Jacobian with the shifts held
+        lin = linearize(base, add, targets, values, data, diff_step=diff_step)
+        extra_cov = None if lin is None else input_noise_cov(
+            base, add, targets, values, data, draws=input_noise_draws, lin=lin)
+        if lin is not None and extra_cov is not None:
+            sigma, corr = linearized_uncertainty(targets, values, lin, data.segments())
             sigma, corr = combine_uncertainty(labels, sigma, corr, extra_cov)
     return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
                      float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
@@ -679,28 +700,41 @@ def noise_weights(model: ActionModel, data: Data, *, draws: int = NOISE_WEIGHT_D
     return out
 
 
-def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
-                    targets: Sequence[Target], values: Mapping[str, float], data: Data, *,
-                    draws: int = INPUT_NOISE_DRAWS, seed: int = 0, diff_step: float = 0.02
-                    ) -> np.ndarray | None:
-    """Covariance (in the targets' own units) of the fitted values that the noise of the
-    measured input force causes: an errors-in-variables term the residual-based (HAC)
-    covariance misses, because the model is driven by the noisy force.
+@dataclass
+class Linearization:
+    """The residuals of ``data`` at some values and their Jacobian for the uncertainties:
+    the targets' columns (in u, forward differences as the fit's) taken with each trial's
+    alignment shift held at the one chosen at the values, then one column per aligned
+    trial, the residuals' derivative by that trial's shift (the shift is a fitted nuisance
+    too: its columns are projected out of the targets')."""
 
-    Linearized Monte Carlo: the Jacobian J of the residuals at ``values`` (forward
-    differences, as the fit's), then ``draws`` copies of the trials whose force channel
-    carries fresh white noise of each trial's level (``input_noise_sigma``; the model
-    smooths it as it smooths the measurement); each copy's change of the residuals maps to
-    a change of the values by the least-squares solution -pinv(J) dr. Returns their
-    covariance, or None when the input is not the measured force, a simulation failed,
-    or fewer than 2 draws are asked. Assumes white input noise; noise low-passed below the
-    model's smoothing (``measurement.SMOOTH_HZ``) is underestimated (docs/workflow.md)."""
+    model: ActionModel
+    r0: np.ndarray
+    J: np.ndarray  # (n, p + shifts)
+    p: int
+
+
+def linearize(base: ActionModel, add: Sequence[Effect | type[Effect]],
+              targets: Sequence[Target], values: Mapping[str, float], data: Data, *,
+              diff_step: float = 0.02) -> Linearization | None:
+    """``data``'s residuals and their Jacobian at ``values`` (``Linearization``), or None
+    when a simulation failed.
+
+    ``Data.aligned`` picks each trial's shift on a grid of a tenth of a sample; a step of
+    a target that moves the best shift to the next point of the grid moves the whole blow
+    by that tenth, and a forward difference across it takes the jump for the target's
+    effect: its column comes out many times too long, and the uncertainties that many
+    times too short (issue 39: a string's stiffness, two forte blows, seed 4, weighted:
+    J'J 1.05 at the fit's step of 0.02 in u, 0.015-0.035 at steps of +-0.0025 to +-0.04
+    that kept the shift, 290 N/m instead of about 1100)."""
     p = len(targets)
-    if data.input != "force" or p == 0 or draws < 2:
-        return None
     rate = data.measurements[0].rate
     model = rebuild(base, add, dict(values), targets, rate)
-    r0 = data.residuals(data.simulate(model))
+    preds = data.simulate(model)
+    shifts = data.shifts(preds) if data.align_s > 0 else None
+    r0 = data.residuals(preds, shifts)
+    if np.any(r0 == FAILED_PENALTY):
+        return None
     u0 = np.array([t.to_u(float(values[t.label])) for t in targets])
     cols = []
     for j, t in enumerate(targets):
@@ -710,15 +744,59 @@ def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
         u[j] = u0[j] + h if u0[j] + h <= hi else u0[j] - h
         vals = {**values, **{tt.label: tt.from_u(float(x)) for tt, x in zip(targets, u,
                                                                                strict=True)}}
-        r = data.residuals(data.simulate(rebuild(base, add, vals, targets, rate)))
+        r = data.residuals(data.simulate(rebuild(base, add, vals, targets, rate)), shifts)
         cols.append((r - r0) / (u[j] - u0[j]))
+    if shifts is not None:
+        for i, ti in enumerate(data.time):
+            if not preds[i] or not data.masks[i].any() or ti.size < 2:
+                continue
+            d = float(ti[1] - ti[0]) / 10
+            up, down = list(shifts), list(shifts)
+            up[i], down[i] = shifts[i] + d, shifts[i] - d
+            cols.append((data.residuals(preds, up) - data.residuals(preds, down)) / (2 * d))
     J = np.column_stack(cols)
-    if not np.all(np.isfinite(J)) or np.any(r0 == FAILED_PENALTY):
+    if not np.all(np.isfinite(J)):
         return None
-    resp = input_noise_responses(model, data, draws=draws, seed=seed, r0=r0)
+    return Linearization(model, r0, J, p)
+
+
+def linearized_uncertainty(targets: Sequence[Target], values: Mapping[str, float],
+                           lin: Linearization, segments: Sequence[int] = ()
+                           ) -> tuple[dict[str, float], np.ndarray | None]:
+    """``_uncertainty`` (the HAC sandwich) from a ``Linearization``: the targets' block of
+    the covariance of targets and shifts."""
+    return _uncertainty(targets, dict(values), lin.r0, lin.J, segments, lin.p)
+
+
+def input_noise_cov(base: ActionModel, add: Sequence[Effect | type[Effect]],
+                    targets: Sequence[Target], values: Mapping[str, float], data: Data, *,
+                    draws: int = INPUT_NOISE_DRAWS, seed: int = 0, diff_step: float = 0.02,
+                    lin: Linearization | None = None) -> np.ndarray | None:
+    """Covariance (in the targets' own units) of the fitted values that the noise of the
+    measured input force causes: an errors-in-variables term the residual-based (HAC)
+    covariance misses, because the model is driven by the noisy force.
+
+    Linearized Monte Carlo: the Jacobian J of the residuals at ``values`` (``linearize``,
+    or ``lin`` when given: the targets' columns with the alignment shifts held, and the
+    shifts' columns), then ``draws`` copies of the trials whose force channel carries fresh
+    white noise of each trial's level (``input_noise_sigma``; the model smooths it as it
+    smooths the measurement); each copy's change of the residuals (re-aligned: the shifts'
+    columns take their change of shift) maps to a change of the values by the
+    least-squares solution -pinv(J) dr. Returns their covariance, or None when the input
+    is not the measured force, a simulation failed, or fewer than 2 draws are asked.
+    Assumes white input noise; noise low-passed below the model's smoothing
+    (``measurement.SMOOTH_HZ``) is underestimated (docs/workflow.md)."""
+    p = len(targets)
+    if data.input != "force" or p == 0 or draws < 2:
+        return None
+    if lin is None:
+        lin = linearize(base, add, targets, values, data, diff_step=diff_step)
+    if lin is None:
+        return None
+    resp = input_noise_responses(lin.model, data, draws=draws, seed=seed, r0=lin.r0)
     if resp is None:
         return None
-    dth = -(resp @ np.linalg.pinv(J).T)
+    dth = -(resp @ np.linalg.pinv(lin.J).T)[:, :p]
     cov_u = np.atleast_2d(np.cov(dth, rowvar=False))
     d = np.array([t.dv_du(float(values[t.label])) for t in targets])
     return np.asarray(cov_u * np.outer(d, d), float)
@@ -741,20 +819,24 @@ def combine_uncertainty(labels: Sequence[str], sigma: Mapping[str, float],
 
 
 def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndarray,
-                 J: np.ndarray, segments: Sequence[int] = ()
+                 J: np.ndarray, segments: Sequence[int] = (), p: int | None = None
                  ) -> tuple[dict[str, float], np.ndarray | None]:
     """Standard errors from the HAC (Newey-West) sandwich covariance (rig.analysis.stats):
-    the residual's autocorrelation within each trial's channel widens them as it must."""
+    the residual's autocorrelation within each trial's channel widens them as it must.
+    With ``p``, ``J``'s first ``p`` columns are the targets' and the rest nuisances' (the
+    covariance's targets' block)."""
     from rig.analysis import stats
 
-    n, p = J.shape
+    n, q = J.shape
     out = dict.fromkeys(values, math.nan)
-    if n <= p or not np.all(np.isfinite(J)) or not np.all(np.isfinite(r)):
+    if n <= q or not np.all(np.isfinite(J)) or not np.all(np.isfinite(r)):
         return out, None
     try:
         cov = stats.sandwich_cov(J, r, list(segments) or [n])
     except np.linalg.LinAlgError:
         return out, None
+    if p is not None:
+        cov = cov[:p, :p]
     d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(d, d)

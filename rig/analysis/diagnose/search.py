@@ -407,22 +407,30 @@ def _noise_draws(model: ActionModel, test: ft.Data, how: str) -> np.ndarray | No
 
 def _add_input_noise(final: Candidate, base: ActionModel,
                      by_name: Mapping[str, type[Effect]], train: ft.Data) -> None:
-    """Widen the final set's uncertainties (and correlations) by the input force's noise
-    (``fit.input_noise_cov`` on the training samples it was fitted on)."""
+    """The final set's uncertainties (and correlations) at its values on the training
+    samples it was fitted on: the HAC sandwich and the input force's noise
+    (``fit.input_noise_cov``), both from one Jacobian with the alignment shifts held and
+    their own columns (``fit.linearize``), not the fit's last one, whose forward step can
+    cross a jump of the best shift (issue 39). Unchanged when the input is not the measured
+    force or a simulation fails."""
     if not final.values:
         return
     kinds = [by_name[n] for n in final.effects or (final.name,)]
     add = [_instance(final, cls) for cls in kinds]
     labels = list(final.values)
     targets = [ft.target(base, k, add) for k in labels]
-    extra = ft.input_noise_cov(base, add, targets, final.values, train)
+    if train.input != "force":
+        return
+    lin = ft.linearize(base, add, targets, final.values, train)
+    if lin is None:
+        return
+    extra = ft.input_noise_cov(base, add, targets, final.values, train, lin=lin)
     if extra is None:
         return
-    corr = np.eye(len(labels))
-    for (a, b), r in final.corr.items():
-        i, j = labels.index(a), labels.index(b)
-        corr[i, j] = corr[j, i] = r
-    sigma, new = ft.combine_uncertainty(labels, final.sigma, corr, extra)
+    hac, corr = ft.linearized_uncertainty(targets, final.values, lin, train.segments())
+    if corr is None:
+        return
+    sigma, new = ft.combine_uncertainty(labels, hac, corr, extra)
     final.sigma = sigma
     final.corr = {(a, b): float(new[i, j]) for i, a in enumerate(labels)
                   for j, b in enumerate(labels) if i < j}
