@@ -177,7 +177,10 @@ def test_cli_refuses_a_bad_model_before_any_press(tmp_path: Path) -> None:
     (["--presses", "2", "--to", "1e6"], "--to"),
     (["--presses", "2", "--from", "50", "--to", "40"], "--from"),
     (["--presses", "2", "--rate", "0"], "--rate"),
-    (["--presses", "2", "--rig", "missing-rig.yaml"], "missing-rig.yaml")])
+    (["--presses", "2", "--rig", "missing-rig.yaml"], "missing-rig.yaml"),
+    (["--rate", "5"], "--rate"),            # press settings without --presses: no presses
+    (["--rig", "rig.yaml"], "--rig"),
+    (["--from", "20", "--condition", "0"], "--from")])
 def test_rig_touch_refuses_presses_it_cannot_make_in_one_line(tmp_path: Path, args: list[str],
                                                                field: str) -> None:
     """`rig touch --presses`' settings are checked as `rig measure touch` checks them, before

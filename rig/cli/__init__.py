@@ -234,6 +234,7 @@ def regulate(
 
 @app.command("touch")
 def touch(
+    ctx: typer.Context,
     model: Annotated[Path | None, typer.Option(
         "--model", "-m", help="model YAML (parameters, effects)")] = None,
     as_json: _JsonOpt = False,
@@ -269,6 +270,14 @@ def touch(
         refuse_existing(plot, force, "plot")
         if presses < 0:
             raise InputError(f"--presses: expected 0 (none) or more presses, got {presses}")
+        if not presses:  # the press settings mean nothing without presses: say so
+            for name, flag in (("rig", "--rig"), ("from_g", "--from"), ("to_g", "--to"),
+                               ("low_g", "--low"), ("rate", "--rate"),
+                               ("threshold", "--threshold"), ("condition", "--condition")):
+                source = ctx.get_parameter_source(name)  # typer's own click: by name
+                if source is not None and source.name == "COMMANDLINE":
+                    raise InputError(f"{flag}: only with --presses N (it sets how the model "
+                                     "is pressed in time)")
         ramps = Ramps(from_g=from_g, to_g=to_g, low_g=low_g, rate_g_s=rate,
                       threshold_mm=threshold, condition=condition)
         cfg, said = rig_config.resolve(rig) if presses else (None, "")
