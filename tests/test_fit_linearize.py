@@ -80,3 +80,29 @@ def test_weighted_string_interval_holds_the_truth(string_blows: list) -> None:
         assert lin.J.shape[1] == 2  # the stiffness, the training trial's shift
         cols.append(float(lin.J[:, 0] @ lin.J[:, 0]))
     assert 0.5 < cols[0] / cols[1] < 2.0
+
+
+def test_a_target_that_moves_nothing_has_no_uncertainty_and_leaves_the_others_alone() -> None:
+    """A nil Jacobian column (the back check's damping under felt hysteresis, whose law
+    replaces the contact's damping: wide benchmark seed 20 printed ``damping = 2.446 +-
+    0.0000000000000016 s/m``, the pseudo-inverse's zero) gives an undetermined (nan)
+    uncertainty, and the other targets' are those without its column; the input-noise
+    term added to it keeps it undetermined."""
+    rng = np.random.default_rng(7)
+    n = 400
+    J = rng.standard_normal((n, 2))
+    r = 0.1 * rng.standard_normal(n)
+    targets = [ft.target(ActionModel(), f"backcheck_law.{k}", [BUILTIN["backcheck_law"]()])
+               for k in ("stiffness_scale", "friction", "damping")]
+    values = {t.label: t.value for t in targets}
+    with_nil = np.column_stack([J, np.zeros(n)])
+    sig3, corr3 = ft._uncertainty(targets, values, r, with_nil)
+    sig2, _ = ft._uncertainty(targets[:2], {k: values[k] for k in list(values)[:2]}, r, J)
+    assert math.isnan(sig3["backcheck_law.damping"])
+    for k in sig2:
+        assert sig3[k] == pytest.approx(sig2[k], rel=1e-12)
+    assert corr3 is not None and corr3[2, 0] == 0.0
+    labels = list(values)
+    combined, _ = ft.combine_uncertainty(labels, sig3, corr3, np.eye(3) * 1e-6)
+    assert math.isnan(combined["backcheck_law.damping"])
+    assert all(math.isfinite(combined[k]) and combined[k] > sig3[k] for k in labels[:2])

@@ -480,7 +480,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         input_noise_draws: int = 0) -> FitResult:
     """Fit the targets by least squares on ``data``'s masked samples (within bounds); with
     ``scan`` > 0 first scan ``scan`` points across the bounds of each target (or of those
-    in ``scan_labels``) one at a time for a better start. With ``input_noise_draws`` > 1
+    in ``scan_labels``) one at a time for a better start; ``max_nfev`` 0 stops there (the
+    scan's best point, its cost, no uncertainties). With ``input_noise_draws`` > 1
     the uncertainties include the input force's noise (``input_noise_cov``).
 
     The Jacobian's columns run on ``executor`` (rig.analysis.executor: local processes or a Dask
@@ -559,6 +560,10 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
                     c = float(np.mean(fun_logged(u) ** 2))
                     if c < best:
                         best, u0 = c, u
+        if max_nfev <= 0:  # the scan's best start only
+            return FitResult(targets, values_of(u0), {t.label: math.nan for t in targets},
+                             float(np.mean(r0 ** 2)), float(np.mean(fun(u0) ** 2)),
+                             calls[0], 0, "scan only", history, None)
         sol = least_squares(fun_logged, u0, jac=jac, bounds=(lo, hi), x_scale=1.0,
                             max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
     finally:
@@ -808,14 +813,18 @@ def combine_uncertainty(labels: Sequence[str], sigma: Mapping[str, float],
     """Add ``extra_cov`` (value units, in ``labels`` order) to the covariance given by
     ``sigma`` and ``corr``; returns the new sigma and correlation matrix."""
     s = np.array([sigma.get(k, math.nan) for k in labels], float)
-    s = np.where(np.isfinite(s), s, 0.0)
+    known = np.isfinite(s)  # an undetermined value (no column of its own) stays so
+    s = np.where(known, s, 0.0)
     c = corr if corr is not None else np.eye(len(labels))
     cov = c * np.outer(s, s) + extra_cov
-    d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    d = np.where(known, np.sqrt(np.clip(np.diag(cov), 0.0, None)), math.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         new_corr = cov / np.outer(d, d)
     new_corr = np.where(np.isfinite(new_corr), new_corr, 0.0)
     return {k: float(v) for k, v in zip(labels, d, strict=True)}, new_corr
+
+
+NIL_COLUMN = 1e-9  # a Jacobian column this small against the largest: the target is inert
 
 
 def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndarray,
@@ -831,12 +840,21 @@ def _uncertainty(targets: Sequence[Target], values: dict[str, float], r: np.ndar
     out = dict.fromkeys(values, math.nan)
     if n <= q or not np.all(np.isfinite(J)) or not np.all(np.isfinite(r)):
         return out, None
+    p = q if p is None else p
+    # a target whose column is nil does not move the residuals at all (the back check's
+    # damping under felt hysteresis, whose law replaces the contact's damping): the data
+    # say nothing of it. Its uncertainty is not determined (nan), not the zero the
+    # pseudo-inverse would give it, and the others' are taken without its column.
+    norms = np.linalg.norm(J, axis=0)
+    live = np.ones(q, bool)
+    live[:p] = norms[:p] > NIL_COLUMN * max(float(norms.max()), 1e-300)
     try:
-        cov = stats.sandwich_cov(J, r, list(segments) or [n])
+        cov_live = stats.sandwich_cov(J[:, live], r, list(segments) or [n])
     except np.linalg.LinAlgError:
         return out, None
-    if p is not None:
-        cov = cov[:p, :p]
+    cov = np.full((q, q), math.nan)
+    cov[np.ix_(live, live)] = cov_live
+    cov = cov[:p, :p]
     d = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(d, d)

@@ -29,9 +29,14 @@ from rig.analysis.diagnose.search import (
     _pick,
     _round,
     _unneeded,
+    above_floor,
     candidates_for,
     held_out_p,
     judge,
+    pair_round,
+    pairs_of,
+    pick_pair,
+    screened_pairs,
 )
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
@@ -154,15 +159,20 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                 continue
             if not first:
                 first = out
+            if best is None and not single and len(chosen) + 2 <= max_effects:
+                best = _pair_step(remaining, {**ctx, "state": state}, ex, progress, base,
+                                  by_name, train, test, state, alpha, min_gain,
+                                  min_noise_gain, z_off, notes, len(chosen) + 1)
             if best is None or single:
                 if best is not None:
                     chosen.append(best)
                 break
             _converge(best, base, by_name, train, test, final_nfev)
             chosen.append(best)
-            cls_b = by_name[best.name]
-            remaining = [c for c in remaining if c is not cls_b
-                         and c.name not in cls_b.implies]
+            for cls_b in (by_name[best.name], *([by_name[best.partner]] if best.partner
+                                                 else [])):
+                remaining = [c for c in remaining if c is not cls_b
+                             and c.name not in cls_b.implies]
             state = state_of(best)
     finally:
         if executor is None:
@@ -224,3 +234,47 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single, remainder=left, max_effects=1 if single else max_effects,
                      held_out_trials=held, withdrawn=withdrawn, written_removal=written)
+
+
+def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
+               progress: Callable[[float, float, str], None] | None, base: ActionModel,
+               by_name: dict[str, type[Effect]], train: ft.Data, test: ft.Data,
+               state: State, alpha: float, min_gain: float, min_noise_gain: float,
+               z_off: float, notes: list[str], step: int) -> Candidate | None:
+    """When no effect alone is significant but the set so far leaves a residual above its
+    noise floor: every pair of the remaining candidates fitted together (``pair_round``),
+    judged at ``alpha`` over the number of pairs, and the best whose two effects are both
+    needed (``pick_pair``), or None. Two effects can each worsen the fit alone and remove
+    nearly all of it together (``search.evaluate_pair``)."""
+    pairs = pairs_of(remaining)
+    if not pairs:
+        return None
+    model = ft.rebuild(base, list(state.chosen), rate=test.measurements[0].rate)
+    if not above_floor(model, test, state.test_resid, alpha):
+        return None
+    n_pairs = len(pairs)
+    pairs = screened_pairs(pairs, ctx, ex)
+    if not pairs:
+        notes.append(f"round {step}: no effect alone was significant and the residual stood "
+                     f"above its noise floor; none of {n_pairs} pairs' start scans lowered "
+                     "the training error")
+        return None
+    out = pair_round(pairs, ctx, ex, progress)
+    level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
+    for c in out:
+        judge(c, level, min_gain, min_noise_gain, z_off)
+    best = pick_pair(out, base, by_name, train, test, state, level)
+    top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
+    if best is not None:
+        notes.append(f"round {step}: no effect alone was significant and the residual stood "
+                     f"above its noise floor; of {n_pairs} pairs, the {len(out)} whose start "
+                     "scans lowered the training error most fitted together: "
+                     f"{best.partner} + {best.name} removes {best.removal * 100:.1f} % of the "
+                     f"held-out error (p = {best.p_value:.2g} <= {level:.2g}) and needs both")
+    elif top is not None:
+        notes.append(f"round {step}: no effect alone was significant and the residual stood "
+                     f"above its noise floor; of {n_pairs} pairs, the {len(out)} whose start "
+                     "scans lowered the training error most fitted together, none "
+                     f"significant (best: {top.partner} + {top.name}, {top.gain_text()}"
+                     + (f"; {top.why_not}" if top.why_not else "") + ")")
+    return best

@@ -75,6 +75,7 @@ class Candidate:
     train_cost: float = math.nan
     test_noise: dict[str, float] = field(default_factory=dict)  # held-out MS / noise^2
     test_resid: np.ndarray | None = field(default=None, repr=False)
+    partner: str = ""                   # a pair's other newcomer (added with this one)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md)."""
@@ -83,6 +84,7 @@ class Candidate:
                 "units": dict(self.units), "removal": self.removal,
                 "channel_removal": dict(self.channel_removal), "train_gain": self.train_gain,
                 "p_value": self.p_value, "significant": self.significant,
+                "partner": self.partner,
                 "why_not": self.why_not, "note": self.note, "error": self.error,
                 "correlations": [{"a": a, "b": b, "r": r} for (a, b), r in self.corr.items()],
                 "base": base_claims(list(self.effects or (self.name,)), self.values,
@@ -104,6 +106,11 @@ class Candidate:
             f"{k[len(pre):] if only_own and k.startswith(pre) else k} = "
             f"{stats.fmt(v, self.sigma.get(k, math.nan), self.units.get(k, ''))}"
             for k, v in items) or "no fitted parameter"
+
+    @property
+    def added(self) -> str:
+        """What the step added: the effect, or a pair's two effects."""
+        return f"{self.partner} + {self.name} (together)" if self.partner else self.name
 
     def gain_text(self) -> str:
         if self.removal < 0:
@@ -339,10 +346,10 @@ class Diagnosis:
         if not self.single:
             lines.append("joint search (forward selection, each step refits the whole set):")
             for i, c in enumerate(self.chosen, 1):
-                lines.append(f"  step {i}: + {c.name}: {c.gain_text()} the set before it "
+                lines.append(f"  step {i}: + {c.added}: {c.gain_text()} the set before it "
                              f"left (held-out p = {c.p_value:.2g})")
             for i, c in enumerate(self.withdrawn, 1):
-                lines.append(f"  step {i}: + {c.name}: {c.gain_text()} the set before it "
+                lines.append(f"  step {i}: + {c.added}: {c.gain_text()} the set before it "
                              f"left (held-out p = {c.p_value:.2g}); withdrawn, see below")
             if not self.chosen and not self.withdrawn:
                 lines.append("  no effect added")
