@@ -263,7 +263,7 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
     for c in out:
         judge(c, level, min_gain, min_noise_gain, z_off)
-    best = pick_pair(out, base, by_name, train, test, state, level)
+    best = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
     top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
     if best is not None:
         notes.append(f"round {step}: no effect alone was significant and the residual stood "
