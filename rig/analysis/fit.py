@@ -549,8 +549,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         u0 = np.zeros(len(targets))
         lo, hi = (np.array(b) for b in zip(*(t.u_bounds for t in targets), strict=True))
         r0 = fun_logged(u0)
+        best = float(np.mean(r0 ** 2))
         if scan > 0:  # coarse one-at-a-time scan across the bounds for a good start
-            best = float(np.mean(r0 ** 2))
             for j in range(len(targets)):
                 if scan_labels is not None and targets[j].label not in scan_labels:
                     continue
@@ -562,8 +562,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
                         best, u0 = c, u
         if max_nfev <= 0:  # the scan's best start only
             return FitResult(targets, values_of(u0), {t.label: math.nan for t in targets},
-                             float(np.mean(r0 ** 2)), float(np.mean(fun(u0) ** 2)),
-                             calls[0], 0, "scan only", history, None)
+                             float(np.mean(r0 ** 2)), best, calls[0], 0, "scan only",
+                             history, None)
         sol = least_squares(fun_logged, u0, jac=jac, bounds=(lo, hi), x_scale=1.0,
                             max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
     finally:

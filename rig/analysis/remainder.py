@@ -106,6 +106,14 @@ def _num(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+def floor_draws(model: ActionModel, test: ft.Data, r: np.ndarray) -> np.ndarray:
+    """Draws of what ``model``'s held-out residual ``r`` on ``test`` holds when the model is
+    right: the output noise and the input force's noise through the model
+    (``stats.noise_floor_draws`` with ``FLOOR_PAIRS`` antithetic responses)."""
+    return stats.noise_floor_draws(test.noise_vector(), ft.input_noise_responses(
+        model, test, r0=r, draws=FLOOR_PAIRS, antithetic=True))
+
+
 def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurement], *,
               of: str, alpha: float = 0.05, align_s: float = 0.0,
               channels: Sequence[str] | None = None,
@@ -122,8 +130,7 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
     r = test.residuals(preds)
     if r.size == 0 or np.any(r == ft.FAILED_PENALTY):
         return None
-    floor = stats.noise_floor_draws(test.noise_vector(), ft.input_noise_responses(
-        model, test, r0=r, draws=FLOOR_PAIRS, antithetic=True))
+    floor = floor_draws(model, test, r)
     ratio, p_all = stats.floor_test(r, floor)
     segs, names = test.segments(), test.segment_channels()
     trial_of = test.segment_trials()

@@ -160,19 +160,17 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             if not first:
                 first = out
             if best is None and not single and len(chosen) + 2 <= max_effects:
-                best = _pair_step(remaining, {**ctx, "state": state}, ex, progress, base,
-                                  by_name, train, test, state, alpha, min_gain,
-                                  min_noise_gain, z_off, notes, len(chosen) + 1)
+                best = _pair_step(remaining, {**ctx, "state": state}, ex, progress, by_name,
+                                  alpha, z_off, notes, len(chosen) + 1)
             if best is None or single:
                 if best is not None:
                     chosen.append(best)
                 break
             _converge(best, base, by_name, train, test, final_nfev)
             chosen.append(best)
-            for cls_b in (by_name[best.name], *([by_name[best.partner]] if best.partner
-                                                 else [])):
-                remaining = [c for c in remaining if c is not cls_b
-                             and c.name not in cls_b.implies]
+            added = [by_name[n] for n in (best.name, best.partner) if n]
+            remaining = [c for c in remaining if c not in added
+                         and not any(c.name in a.implies for a in added)]
             state = state_of(best)
     finally:
         if executor is None:
@@ -237,15 +235,16 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
 
 
 def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
-               progress: Callable[[float, float, str], None] | None, base: ActionModel,
-               by_name: dict[str, type[Effect]], train: ft.Data, test: ft.Data,
-               state: State, alpha: float, min_gain: float, min_noise_gain: float,
-               z_off: float, notes: list[str], step: int) -> Candidate | None:
-    """When no effect alone is significant but the set so far leaves a residual above its
-    noise floor: every pair of the remaining candidates fitted together (``pair_round``),
-    judged at ``alpha`` over the number of pairs, and the best whose two effects are both
-    needed (``pick_pair``), or None. Two effects can each worsen the fit alone and remove
-    nearly all of it together (``search.evaluate_pair``)."""
+               progress: Callable[[float, float, str], None] | None,
+               by_name: dict[str, type[Effect]], alpha: float, z_off: float,
+               notes: list[str], step: int) -> Candidate | None:
+    """When no effect alone is significant but the set so far (``ctx["state"]``) leaves a
+    residual above its noise floor: every pair of the remaining candidates start-scanned
+    (``screened_pairs``), the best fitted together (``pair_round``), judged at ``alpha``
+    over the number fitted, and the best whose two effects are both needed
+    (``pick_pair``), or None. Two effects can each worsen the fit alone and remove nearly
+    all of it together (``search.evaluate_pair``)."""
+    base, train, test, state = ctx["base"], ctx["train"], ctx["test"], ctx["state"]
     pairs = pairs_of(remaining)
     if not pairs:
         return None
@@ -253,28 +252,25 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     if not above_floor(model, test, state.test_resid, alpha):
         return None
     n_pairs = len(pairs)
+    why = (f"round {step}: no effect alone was significant and the residual stood above its "
+           "noise floor; ")
     pairs = screened_pairs(pairs, ctx, ex)
     if not pairs:
-        notes.append(f"round {step}: no effect alone was significant and the residual stood "
-                     f"above its noise floor; none of {n_pairs} pairs' start scans lowered "
-                     "the training error")
+        notes.append(f"{why}none of {n_pairs} pairs' start scans lowered the training error")
         return None
     out = pair_round(pairs, ctx, ex, progress)
     level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
     for c in out:
-        judge(c, level, min_gain, min_noise_gain, z_off)
+        judge(c, level, ctx["min_gain"], ctx["min_noise_gain"], z_off)
     best = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
     top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
+    fitted = (f"of {n_pairs} pairs, the {len(out)} whose start scans lowered the training "
+              "error most fitted together")
     if best is not None:
-        notes.append(f"round {step}: no effect alone was significant and the residual stood "
-                     f"above its noise floor; of {n_pairs} pairs, the {len(out)} whose start "
-                     "scans lowered the training error most fitted together: "
-                     f"{best.partner} + {best.name} removes {best.removal * 100:.1f} % of the "
-                     f"held-out error (p = {best.p_value:.2g} <= {level:.2g}) and needs both")
+        notes.append(f"{why}{fitted}: {best.partner} + {best.name} removes "
+                     f"{best.removal * 100:.1f} % of the held-out error (p = "
+                     f"{best.p_value:.2g} <= {level:.2g}) and needs both")
     elif top is not None:
-        notes.append(f"round {step}: no effect alone was significant and the residual stood "
-                     f"above its noise floor; of {n_pairs} pairs, the {len(out)} whose start "
-                     "scans lowered the training error most fitted together, none "
-                     f"significant (best: {top.partner} + {top.name}, {top.gain_text()}"
-                     + (f"; {top.why_not}" if top.why_not else "") + ")")
+        notes.append(f"{why}{fitted}, none significant (best: {top.partner} + {top.name}, "
+                     f"{top.gain_text()}" + (f"; {top.why_not}" if top.why_not else "") + ")")
     return best

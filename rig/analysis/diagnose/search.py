@@ -15,6 +15,7 @@ from rig.analysis import stats
 from rig.analysis.diagnose.common import (
     SAME_MINIMUM,
     _instance,
+    _instances,
     _pair_corr,
     _set_model,
 )
@@ -84,6 +85,11 @@ def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
     return max(zs) if zs else math.inf
 
 
+def _fitted(kinds: Sequence[type[Effect]]) -> list[str]:
+    """The fitted parameters of ``kinds``, keyed ``effect.param``."""
+    return [f"{e.name}.{p.name}" for e in kinds for p in e.parameters if p.fitted]
+
+
 def noise_p(test: ft.Data, r0: np.ndarray, r1: np.ndarray,
             responses: np.ndarray | None) -> float:
     """The held-out p that ``r1`` is smaller in mean square than ``r0`` on ``test`` by the
@@ -105,8 +111,7 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     chosen = list(state.chosen)
     add: list[Effect | type[Effect]] = [*chosen, cls]
     kinds: list[type[Effect]] = [*(type(e) for e in chosen), cls]
-    specs = [f"{e.name}.{p.name}" for e in kinds for p in e.parameters if p.fitted]
-    new = [f"{cls.name}.{p.name}" for p in cls.parameters if p.fitted]
+    specs, new = _fitted(kinds), _fitted([cls])
     units = {f"{e.name}.{p.name}": _unit(p.units) for e in kinds for p in e.parameters}
     names = (*(e.name for e in chosen), cls.name)
     try:
@@ -360,7 +365,7 @@ def evaluate_pair(pair: tuple[type[Effect], type[Effect]], base: ActionModel, tr
     so a forward search one effect at a time never takes the first step."""
     first, second = pair
     partner = first()
-    labels = [f"{cls.name}.{p.name}" for cls in pair for p in cls.parameters if p.fitted]
+    labels = _fitted(pair)
     c = evaluate_candidate(second, base, train, test,
                            replace(state, chosen=[*state.chosen, partner]), max_nfev,
                            min_gain, min_noise_gain, scan, scan_labels=labels)
@@ -376,14 +381,12 @@ def screen_pair(pair: tuple[type[Effect], type[Effect]], base: ActionModel, trai
     of the start scan over the pair's parameters (no least-squares step): a pair round's
     coarse first pass (inf when a simulation fails)."""
     add: list[Effect | type[Effect]] = [*state.chosen, *pair]
-    kinds = [*(type(e) for e in state.chosen), *pair]
-    specs = [f"{e.name}.{p.name}" for e in kinds for p in e.parameters if p.fitted]
-    labels = [f"{cls.name}.{p.name}" for cls in pair for p in cls.parameters if p.fitted]
+    specs = _fitted([*(type(e) for e in state.chosen), *pair])
     if not specs:
         return math.inf
     try:
         res = ft.fit(base, train, specs, add, jobs=1, max_nfev=0, scan=scan,
-                     scan_labels=labels)
+                     scan_labels=_fitted(pair))
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         return math.inf
     return res.cost if math.isfinite(res.cost) else math.inf
@@ -401,10 +404,9 @@ def screened_pairs(pairs: Sequence[tuple[type[Effect], type[Effect]]], ctx: dict
                    executor: Executor) -> list[tuple[type[Effect], type[Effect]]]:
     """The ``PAIR_REFITS`` pairs whose start scans reach the lowest training cost below the
     set so far's, in that order."""
-    shared = {**ctx, "pairs": list(pairs)}
-    costs = dict(executor.map(_screen_pair, range(len(pairs)), shared=shared))
+    costs = _map(_screen_pair, "pairs", pairs, ctx, executor)
     train_cost = ctx["state"].train_cost
-    keep = sorted((i for i, c in costs.items() if c < train_cost), key=lambda i: costs[i])
+    keep = sorted((i for i, c in enumerate(costs) if c < train_cost), key=lambda i: costs[i])
     return [pairs[i] for i in keep[:PAIR_REFITS]]
 
 
@@ -425,17 +427,8 @@ def pair_round(pairs: Sequence[tuple[type[Effect], type[Effect]]], ctx: dict[str
                executor: Executor, progress: Callable[[float, float, str], None] | None
                ) -> list[Candidate]:
     """Every pair of a pair round, fitted on ``executor``, in the pairs' order."""
-    total = len(pairs)
-    if progress:
-        progress(0, total, "fitting pairs of candidates")
-    out: list[Candidate | None] = [None] * total
-    shared = {**ctx, "pairs": list(pairs)}
-    for n, (i, cand) in enumerate(executor.map(_evaluate_pair, range(total), shared=shared),
-                                  1):
-        out[i] = cand
-        if progress:
-            progress(n, total, f"{pairs[i][0].name} + {pairs[i][1].name}")
-    return [c for c in out if c is not None]
+    return _map(_evaluate_pair, "pairs", pairs, ctx, executor, progress,
+                "fitting pairs of candidates", lambda ab: f"{ab[0].name} + {ab[1].name}")
 
 
 def refit_without_p(c: Candidate, name: str, base: ActionModel,
@@ -454,8 +447,7 @@ def refit_without_p(c: Candidate, name: str, base: ActionModel,
     rate = test.measurements[0].rate
     try:
         if vals and max_nfev > 0:
-            add = [by_name[n](**{k[len(n) + 1:]: v for k, v in vals.items()
-                                 if k.startswith(n + ".")}) for n in keep]
+            add = _instances([by_name[n] for n in keep], vals)
             res = ft.fit(base, train, [ft.target(base, k, add) for k in vals], add, jobs=1,
                          max_nfev=max_nfev)
             vals = dict(res.values)
@@ -496,15 +488,31 @@ def above_floor(model: ActionModel, test: ft.Data, resid: np.ndarray, alpha: flo
     """Whether ``model``'s held-out residual ``resid`` stands above its noise floor (the
     output noise and the input force's noise through the model; ``stats.floor_test`` at
     ``alpha``)."""
-    from rig.analysis.remainder import FLOOR_PAIRS
+    from rig.analysis.remainder import floor_draws
 
     try:
-        resp = ft.input_noise_responses(model, test, r0=resid, draws=FLOOR_PAIRS,
-                                        antithetic=True)
+        floor = floor_draws(model, test, resid)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-        resp = None
-    _, p = stats.floor_test(resid, stats.noise_floor_draws(test.noise_vector(), resp))
-    return p <= alpha
+        floor = stats.noise_floor_draws(test.noise_vector())
+    return stats.floor_test(resid, floor)[1] <= alpha
+
+
+def _map(task: Callable[[Mapping[str, Any], int], Any], key: str, items: Sequence[Any],
+         ctx: dict[str, Any], executor: Executor,
+         progress: Callable[[float, float, str], None] | None = None, what: str = "",
+         label: Callable[[Any], str] = str) -> list[Any]:
+    """``task(shared, i)`` for every item on ``executor`` (``ctx`` with the items under
+    ``key`` travels once per worker), in the items' order, with progress."""
+    total = len(items)
+    if progress:
+        progress(0, total, what)
+    out: list[Any] = [None] * total
+    shared = {**ctx, key: list(items)}
+    for n, (i, got) in enumerate(executor.map(task, range(total), shared=shared), 1):
+        out[i] = got
+        if progress:
+            progress(n, total, label(items[i]))
+    return [c for c in out if c is not None]
 
 
 def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], executor: Executor,
@@ -512,16 +520,8 @@ def _round(classes: Sequence[type[Effect]], ctx: dict[str, Any], executor: Execu
            ) -> list[Candidate]:
     """Every candidate of a round, fitted on ``executor`` (the round's models and data
     travel once per worker), in the classes' order."""
-    total = len(classes)
-    if progress:
-        progress(0, total, what)
-    out: list[Candidate | None] = [None] * total
-    shared = {**ctx, "classes": list(classes)}
-    for n, (i, cand) in enumerate(executor.map(_evaluate, range(total), shared=shared), 1):
-        out[i] = cand
-        if progress:
-            progress(n, total, classes[i].name)
-    return [c for c in out if c is not None]
+    return _map(_evaluate, "classes", classes, ctx, executor, progress, what,
+                lambda cls: cls.name)
 
 
 def _converge(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
