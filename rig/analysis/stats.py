@@ -112,6 +112,59 @@ def noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
     return z, 0.5 * math.erfc(z / math.sqrt(2))
 
 
+def segment_noise_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
+                       input_responses: np.ndarray | None, segments: Sequence[int]
+                       ) -> tuple[float, float]:
+    """``noise_model_test`` with each segment (a held-out trial's channel) weighed by the
+    evidence it can hold: (z, p).
+
+    Per segment ``i`` the statistic ``S_i = sum(r0^2 - r1^2)`` has the expected gain
+    ``D_i = sum(delta^2)`` if ``r1``'s model is right, and the noise variance ``V_i``
+    (white output noise plus the input force's noise through the model, as in
+    ``noise_model_test``); ``sum w_i S_i`` with ``w_i = D_i / V_i`` is the linear
+    combination with the most power for that gain (a matched filter over segments). One
+    noisy segment no longer swamps the rest: a held-out piano blow whose hammer timing the
+    force's noise moves by milliseconds held most of the plain statistic's variance, while
+    the shank's strain on the same blow showed the candidate's oscillation at 49 times its
+    own noise (wide benchmark, development seed 145: plain p = 0.013).
+
+    ``delta = r0 - r1`` is fixed by the training data and the variances come from the
+    noise model's draws, so the weights hold no held-out noise. The weights and the
+    variance of the weighted sum come from the same draws: weights chosen where the draws
+    happen to look quiet shrink the variance they are judged by, but only by
+    ``E[V / V_hat]``, 1.07 for 32 draws (3 % on z); taking them from disjoint halves
+    instead leaves 16 draws for the variance, a t-distribution of 15 degrees of freedom
+    that doubles the false alarms at the diagnose's levels (about 0.006). Falls back to
+    ``noise_model_test`` when there are fewer than two segments or fewer than four
+    draws."""
+    r0, r1 = np.asarray(r0, float), np.asarray(r1, float)
+    seg = [int(s) for s in segments]
+    resp = None if input_responses is None else np.asarray(input_responses, float)
+    if r0.shape != r1.shape or r0.size < 4 or len(seg) < 2 or sum(seg) != r0.size \
+            or resp is None or resp.ndim != 2 or resp.shape[0] < 4 \
+            or resp.shape[1] != r0.size:
+        return noise_model_test(r0, r1, out_sigma, input_responses)
+    delta = r0 - r1
+    sig2 = np.broadcast_to(np.asarray(out_sigma, float) ** 2, r0.shape)
+    edges = np.cumsum([0, *seg])
+    idx = np.repeat(np.arange(len(seg)), seg)
+    gain = np.bincount(idx, r0 ** 2 - r1 ** 2, len(seg))
+    expect = np.bincount(idx, delta ** 2, len(seg))
+    v_out = 4.0 * np.bincount(idx, delta ** 2 * sig2, len(seg))
+    proj = 2.0 * np.stack([resp[:, a:b] @ delta[a:b] for a, b in zip(edges[:-1], edges[1:],
+                                                                      strict=True)], axis=1)
+    v_seg = v_out + np.var(proj, axis=0, ddof=1)
+    w = np.divide(expect, v_seg, out=np.zeros_like(expect), where=v_seg > 0)
+    if not np.any(w > 0):
+        return noise_model_test(r0, r1, out_sigma, input_responses)
+    w = w / w.max()
+    var = float(np.sum(w ** 2 * v_out)) + float(np.var(proj @ w, ddof=1))
+    if not var > 0:
+        return 0.0, 1.0
+    z = float(w @ gain) / math.sqrt(var)
+    return z, 0.5 * math.erfc(z / math.sqrt(2))
+
+
 def weighted_noise_model_test(r0: np.ndarray, r1: np.ndarray, out_sigma: np.ndarray,
                               input_responses: np.ndarray | None, weights: np.ndarray
                               ) -> tuple[float, float]:

@@ -49,9 +49,12 @@ A candidate counts as significant only when all hold:
   squared residuals at level ``alpha`` divided by the number of candidates in the
   round (Bonferroni: the whole round's false-alarm rate is at most ``alpha``).
   By default (``held_out_test="noise"``) its variance comes from a noise model
-  of the held-out trials (rig.analysis.stats.noise_model_test: white output noise
-  plus the model's simulated response to the input force's noise), so another
-  missing effect's misfit is not taken for noise; ``"hac"`` (and any input other
+  of the held-out trials (white output noise plus the model's simulated response to
+  the input force's noise), so another missing effect's misfit is not taken for
+  noise, and each held-out trial's channel is weighed by the evidence it can hold
+  (rig.analysis.stats.segment_noise_test: its expected gain over its noise variance),
+  so a blow whose timing the force's noise moves does not swamp a quiet channel that
+  shows the change; ``"hac"`` (and any input other
   than the measured force) takes it from the residuals instead
   (stats.improvement_test, Diebold-Mariano type, Newey-West within each trial's
   channel);

@@ -94,11 +94,14 @@ def noise_p(test: ft.Data, r0: np.ndarray, r1: np.ndarray,
             responses: np.ndarray | None) -> float:
     """The held-out p that ``r1`` is smaller in mean square than ``r0`` on ``test`` by the
     noise-model test (``responses``: the input force's noise through ``r0``'s model):
-    ``stats.noise_model_test``, or on weighted data ``stats.weighted_noise_model_test``
-    (the weighted and the unweighted statistic, the smaller p doubled)."""
+    ``stats.segment_noise_test`` (each held-out trial's channel weighed by the evidence it
+    can hold), or on weighted data
+    ``stats.weighted_noise_model_test`` (the weighted and the unweighted statistic, the
+    smaller p doubled)."""
     w = test.weight_vector()
     if w is None:
-        return stats.noise_model_test(r0, r1, test.noise_vector(), responses)[1]
+        return stats.segment_noise_test(r0, r1, test.noise_vector(), responses,
+                                        test.segments())[1]
     return stats.weighted_noise_model_test(r0, r1, test.noise_vector(), responses, w)[1]
 
 
