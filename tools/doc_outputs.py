@@ -25,7 +25,15 @@ end anywhere. Two lines agree when their text without the numbers is the same
   rounding of a figure that sits on a digit's edge. A whole number's last digit is its
   last non-zero one (``480``: tens; ``30310``: tens) and one without trailing zeros (a
   count, a rank) must be exact. With the lock file (requirements.lock) a seed-fixed
-  command prints the same digits on any machine, so anything more is a stale doc;
+  command prints the same digits on one machine, so anything more is a stale doc. Not
+  on every machine: the same commit and lock printed other last digits on another CPU
+  (2026-11-27, an Emerald Rapids VM against the earlier sessions' machine, with numpy's
+  AVX-512 paths, OpenBLAS's core type and numba's target CPU each ruled out: the base
+  model's noise ratio 929.2 -> 929.5 in the hidden-string example, its flexible shank
+  fitted alone at E = (1.757 +- 0.099)e10 Pa against (1.802 +- 0.052)e10, its final fit
+  restarted into a minimum 0.3 % lower; the Kawai stroke 15's fitted radius 7.26 ->
+  7.17 mm); the docs show what the machine of the last refresh printed
+  (tools/refresh_docs.py);
 - a shown value below 1e-6 in size (p-values such as ``7.6e-144``) agrees with an actual
   one of the same sign when their log10 differ by at most 4 % of the shown one's, and at
   least 2 decades: such tail probabilities come from a sum of squares in which the last
