@@ -6,7 +6,7 @@ independent-noise intervals do not."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -420,7 +420,8 @@ def test_floor_test_holds_its_level_on_a_right_models_residual_and_finds_a_misfi
     assert stats.floor_test(np.ones(4), np.zeros((3, 4)))[1] == 0.0
 
 
-def _four_blows(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, Any]:
+def _four_blows(rng: np.random.Generator
+                ) -> tuple[np.ndarray, np.ndarray, Callable[[int], np.ndarray]]:
     """Four held-out segments of 0.15 s: the first a blow whose timing the input force's
     noise moves (a strike's time derivative, large), the others quiet (white output noise
     and a little coloured input noise). Returns (time, timing shape, draws(k))."""

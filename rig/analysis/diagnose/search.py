@@ -65,7 +65,7 @@ class State:
     test_resid: np.ndarray
     test_ms: dict[str, tuple[float, float]]
     train_cost: float
-    # how the input force's noise moves test_resid (draws x samples), for noise_model_test;
+    # how the input force's noise moves test_resid (draws x samples), for noise_p;
     # None: the HAC test (improvement_test)
     test_noise_draws: np.ndarray | None = None
 
@@ -95,9 +95,8 @@ def noise_p(test: ft.Data, r0: np.ndarray, r1: np.ndarray,
     """The held-out p that ``r1`` is smaller in mean square than ``r0`` on ``test`` by the
     noise-model test (``responses``: the input force's noise through ``r0``'s model):
     ``stats.segment_noise_test`` (each held-out trial's channel weighed by the evidence it
-    can hold), or on weighted data
-    ``stats.weighted_noise_model_test`` (the weighted and the unweighted statistic, the
-    smaller p doubled)."""
+    can hold), or on weighted data ``stats.weighted_noise_model_test`` (the weighted and
+    the unweighted statistic, the smaller p doubled)."""
     w = test.weight_vector()
     if w is None:
         return stats.segment_noise_test(r0, r1, test.noise_vector(), responses,
@@ -200,7 +199,7 @@ def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
              noise: bool, level: float) -> tuple[float, Candidate | None] | None:
     """The set ``c`` (its held-out residual ``c.test_resid`` at its values) without the
     effect ``name``, the others at ``c``'s values: the one-sided held-out p that it is
-    worse than ``c`` (``stats.noise_model_test`` with its own input-noise draws when
+    worse than ``c`` (``noise_p`` with its own input-noise draws when
     ``noise``, else ``stats.improvement_test``), and, when p > ``level``, the reduced set
     as a copy of ``template`` (whose step fields it keeps), scored. None when a simulation
     fails."""
@@ -234,7 +233,7 @@ def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
 def held_out_p(base: ActionModel, by_name: Mapping[str, type[Effect]], test: ft.Data,
                noise: bool) -> Callable[[Candidate, Candidate], float]:
     """``p(a, b)``: the one-sided held-out p that candidate ``a``'s residual is smaller in
-    mean square than ``b``'s (``stats.noise_model_test`` with the input noise drawn through
+    mean square than ``b``'s (``noise_p`` with the input noise drawn through
     ``b``'s model when ``noise``, else ``stats.improvement_test``); 1 when either has no
     held-out residual or ``b``'s model fails. Each pair is tested once."""
     done: dict[tuple[int, int], float] = {}
