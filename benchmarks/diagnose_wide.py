@@ -60,6 +60,14 @@ Scoring (the issue's acceptance list):
   base model's, significantly (one-sided ``stats.improvement_test`` at 5 %, HAC over the
   held-out blows' channels) -- worse beyond the noise;
 - seconds per diagnose (its wall time) -- median.
+
+Beside them, a diagnostic that is no acceptance figure: the oracle (``oracle_shown``) asks
+whether the run's held-out trials, as diagnose splits them, show the hidden library set at
+its TRUE values against the base model, by diagnose's own test and gain rule (each effect
+needed when there are several). Where it does not (a string a piano blow never reaches,
+base offsets that make the true effect alone worse than none), the exact-set figure counts
+a miss no method that credits only what the held-out data show can avoid; "exact where
+the held-out trials show the hidden set" is the method's share where the data allow it.
 """
 
 from __future__ import annotations
@@ -318,6 +326,10 @@ class Score:
     written_p: float | None = None
     seconds: float = math.nan
     misses: list[str] = field(default_factory=list)
+    # the oracle (``shown``): do the run's held-out trials, split as diagnose splits them,
+    # show the hidden library set at its true values? None: nothing hidden
+    shown: bool | None = None
+    shown_why: str = ""
 
 
 def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
@@ -382,6 +394,63 @@ def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float 
     return 1.0 - float(np.mean(r_written ** 2) / np.mean(r_base ** 2)), p
 
 
+def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: float = 0.2,
+          align_s: float = 5e-4) -> tuple[bool | None, str]:
+    """The oracle: do the run's held-out trials show the hidden library effects? The base
+    model and the base model with the hidden library effects at their TRUE values (the
+    sensor chain's filter as the library's ``load_cell_filter`` at its cutoff), scored on
+    diagnose's own split of the run (``fit.split_masks``, its window and alignment) by
+    diagnose's own held-out test (``search.noise_p``): the set must remove at least
+    ``min_gain`` of the held-out error at the first round's level (``alpha`` over the
+    number of library candidates), and with two or more effects each must be needed (the
+    set without it significantly worse at ``alpha``). (None, "") with nothing hidden.
+    Where the oracle fails, the held-out data cannot confirm the truth against the base
+    model, whatever a method fits: no method that credits only what the held-out data
+    show chooses it there (a best case, not a bound: a fit may also absorb the base
+    offsets and do better, or worse)."""
+    from rig.analysis import fit as ft
+    from rig.analysis import measurement as ms
+    from rig.analysis.diagnose.search import candidates_for, noise_p
+    from rig.inputs.params import Parameters
+    from rig.model.action import ActionModel
+
+    if not d.hidden:
+        return None, ""
+    windows = None if d.window is not None else [ms.blow_window(m)[0] for m in meas]
+    data = ft.Data.build(meas, "force", d.window, None, align_s=align_s, windows=windows)
+    test = data.subset(ft.split_masks(data)[1])
+    rate = meas[0].rate
+    base = ft.rebuild(ActionModel(), rate=rate)
+
+    def model(names: Sequence[str]) -> Any:
+        return ft.rebuild(ActionModel(Parameters.default(), [{n: d.hidden[n]} for n in names]),
+                          rate=rate)
+
+    def test_of(r_names: Sequence[str], names: Sequence[str]) -> tuple[float, float]:
+        m0 = base if not r_names else model(r_names)
+        p0, p1 = test.simulate(m0), test.simulate(model(names))
+        e0, e1 = test.channel_ms(p0), test.channel_ms(p1)
+        mean0 = float(np.mean([v[0] for v in e0.values()]))
+        mean1 = float(np.mean([e1[c][0] for c in e0]))
+        p = noise_p(test, test.residuals(p0), test.residuals(p1),
+                    ft.input_noise_responses(m0, test))
+        return (1 - mean1 / mean0 if mean0 > 0 else 0.0), p
+
+    names = list(d.hidden)
+    level = alpha / max(1, len(candidates_for(ActionModel())))
+    removal, p = test_of([], names)
+    if removal < min_gain or p > level:
+        return False, (f"the true set removes {removal * 100:.1f} % of the held-out error "
+                       f"(p = {p:.2g}; needs >= {min_gain * 100:.0f} % at p <= {level:.2g})")
+    if len(names) >= 2:
+        for n in names:
+            _, p_n = test_of([m for m in names if m != n], names)
+            if p_n > alpha:
+                return False, (f"the true set without {n} does as well on the held-out "
+                               f"data (p = {p_n:.2g} > {alpha:.2g})")
+    return True, f"the true set removes {removal * 100:.1f} % of the held-out error (p = {p:.2g})"
+
+
 def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = False
              ) -> tuple[Draw, Score, list[str]]:
     """Synthesize, diagnose, write and check one seed."""
@@ -403,6 +472,7 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
         s = score(d, diag.chosen_names, final.values if final else {},
                   final.sigma if final else {})
         s.seconds = seconds
+        s.shown, s.shown_why = oracle_shown(d, meas)
         if final is not None:
             out = Path(tmp) / "written.yaml"
             dg.write_model(None, diag, out)
@@ -433,6 +503,9 @@ def summarize(scores: Sequence[Score]) -> dict[str, Any]:
             "cover95": (sum(s.covered for s in scores), checked),
             "written_worse": rate([s.written_worse for s in scores]),
             "median_s": statistics.median(times) if times else None,
+            # the exact share among the seeds whose held-out trials show the truth (oracle)
+            "exact_where_shown": (sum(s.exact for s in scores if s.shown),
+                                  sum(bool(s.shown) for s in scores)),
             # where it misses: the exact share by the number of hidden library effects
             "exact_by_hidden": {str(k): (sum(s.exact for s in scores if len(s.hidden) == k),
                                          sum(len(s.hidden) == k for s in scores))
@@ -453,6 +526,12 @@ def table(summary: Mapping[str, Any]) -> list[str]:
             continue
         n, m = v
         lines.append(f"{k:<16}{f'{n}/{m}':>12}{(f'{n / m:.2f}' if m else '-'):>8}  {target}")
+    shown_ = summary.get("exact_where_shown")
+    if shown_ is not None:
+        n, m = shown_
+        hid = sum(m for k, (_, m) in summary.get("exact_by_hidden", {}).items() if k != "0")
+        lines.append(f"exact where the held-out trials show the hidden set (oracle): {n}/{m} "
+                     f"(of {hid} seeds with a hidden library effect)")
     by = summary.get("exact_by_hidden", {})
     if by:
         lines.append("exact by hidden library effects: " + ", ".join(

@@ -249,7 +249,8 @@ def _render(exe: str, html_path: Path) -> tuple[str, str]:
 
 
 @pytest.mark.slow
-def test_cli_synth_compare_fit_diagnose(tmp_path: Path) -> None:
+def test_cli_synth_compare_fit_diagnose(tmp_path: Path,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
     runner = CliRunner()
     truth = tmp_path / "truth.yaml"
     truth.write_text(yaml.safe_dump({"effects": [{"compliant_string": {"stiffness": 2e4}}]}))
@@ -297,6 +298,17 @@ def test_cli_synth_compare_fit_diagnose(tmp_path: Path) -> None:
                             "--jobs", "1", "--write", str(nothing)])
     assert r.exit_code == 1 and "no library effect explains" in r.output
     assert "was not written" in r.output and not nothing.exists()
+    from rig.analysis import diagnose as dg  # a set worse on one trial: withdrawn, not written
+
+    monkeypatch.setattr(dg, "worse_trial", lambda final, base, by_name, data, *a, **k:
+                        dg.WorseTrial(0, data.measurements[0].label, -0.5, 1e-8, False))
+    r = runner.invoke(app, ["diagnose", str(run), "--candidate", "compliant_string",
+                            "--jobs", "1", "--write", str(nothing)])
+    assert r.exit_code == 1 and "no effect is claimed: compliant_string" in r.output, r.output
+    assert f"the chosen set predicts {run.name}#0 worse than the base model; {nothing} was " \
+        "not written" in " ".join(r.output.split()), r.output
+    assert not nothing.exists()
+    monkeypatch.undo()
     r = runner.invoke(app, ["compare", str(run), "--input", "sideways"])
     assert r.exit_code == 2 and "input:" in r.output
 

@@ -152,6 +152,37 @@ def test_a_written_model_worse_than_the_base_on_held_out_blows_is_measured_so(
     assert written_values(c)["key_liftoff.pin_friction"] != c.values["key_liftoff.pin_friction"]
 
 
+def test_a_written_set_worse_on_one_trial_of_the_run_is_found(tmp_path: Path) -> None:
+    """``check.worse_trial``: a string of 2e4 N/m hidden, a 20 N blow (fitted on) and a
+    1.5 N piano blow that never reaches the string (held out). The string at its true
+    stiffness, or stiffer (nearer the base), predicts no trial worse than the base model; a
+    string four times too soft makes the 20 N blow worse, significantly, and leaves the
+    piano blow as it was."""
+    from rig.analysis.diagnose.check import worse_trial
+
+    strong = profiles.from_points([[0, 0], [0.02, 0], [0.1, 20], [0.3, 20]], name="20 N")
+    piano = profiles.from_points([[0, 0], [0.02, 0], [0.1, 1.5], [0.3, 1.5]], name="piano")
+    path = tmp_path / "string.h5"
+    synth.synth(ActionModel(effects=[{"compliant_string": {"stiffness": 2e4}}]),
+                [strong, piano], path, seed=5, duration=0.15)
+    meas = ms.load(path)
+    data = ft.Data.build(meas, "force", 0.15, None, align_s=5e-4)
+    assert ft.held_out_trials(data) == [1]
+    base = ft.rebuild(ActionModel(), rate=meas[0].rate)
+    by_name = {"compliant_string": BUILTIN["compliant_string"]}
+
+    def string(stiffness: float) -> dg.Candidate:
+        v = {"compliant_string.stiffness": stiffness}
+        return dg.Candidate("compliant_string", "", v, {k: 1e-9 for k in v}, {}, 0.5, {},
+                            10.0, True, effects=("compliant_string",))
+
+    assert worse_trial(string(2e4), base, by_name, data, [1], 0.05) is None
+    assert worse_trial(string(1e5), base, by_name, data, [1], 0.05) is None
+    bad = worse_trial(string(5e3), base, by_name, data, [1], 0.05)
+    assert bad is not None and bad.index == 0 and not bad.held_out, bad
+    assert bad.label == meas[0].label and bad.removal < -0.3 and bad.p_value < 1e-6, bad
+
+
 @pytest.mark.slow
 def test_a_chosen_set_worse_on_held_out_blows_is_not_claimed_nor_written(tmp_path: Path,
         monkeypatch: pytest.MonkeyPatch) -> None:
@@ -185,6 +216,29 @@ def test_a_chosen_set_worse_on_held_out_blows_is_not_claimed_nor_written(tmp_pat
     d = dg.diagnose(ActionModel(), meas, duration=0.15, candidates=["drive_dynamics"], jobs=2)
     assert d.chosen_names == ["drive_dynamics"] and not d.withdrawn, "\n".join(d.report_lines())
     assert d.written_removal is not None and d.written_removal > 0.5
+    assert d.worse_trial is None and d.as_dict()["worse_trial"] is None
+    # better on the held-out blow, but one trial of the run (check.worse_trial, tested on
+    # its own above) worse: withdrawn too, the verdict names the trial
+    seen: list[list[int]] = []
+
+    def one_worse(final: dg.Candidate, base: ActionModel, by_name: object, data: ft.Data,
+                  held_out: list[int], alpha: float, noise: bool = True) -> dg.WorseTrial:
+        seen.append(list(held_out))
+        return dg.WorseTrial(0, data.measurements[0].label, -0.4, 1e-9, 0 in held_out)
+
+    monkeypatch.setattr(dg, "worse_trial", one_worse)
+    d = dg.diagnose(ActionModel(), meas, duration=0.15, candidates=["drive_dynamics"], jobs=2)
+    text = "\n".join(d.report_lines())
+    assert seen == [[1]] and d.chosen_names == [] and d.written_removal is not None \
+        and d.written_removal > 0.5, text
+    assert [c.name for c in d.withdrawn] == ["drive_dynamics"], text
+    assert d.verdict().startswith("no effect is claimed: drive_dynamics"), text
+    assert f"predicts {meas[0].label} (a training trial) worse than the base model (40 % " \
+        "more error there, p = 1e-09" in d.verdict(), text
+    assert d.as_dict()["worse_trial"] == {"index": 0, "label": meas[0].label, "removal": -0.4,
+                                          "p_value": 1e-9, "held_out": False}
+    with pytest.raises(InputError, match="nothing to write"):
+        dg.write_model(None, d, tmp_path / "out.yaml")
 
 
 FRICTION = '''

@@ -243,10 +243,16 @@ def test_summary_counts_each_figure_over_the_seeds_it_applies_to() -> None:
     assert got["cover95"] == (1, 1) and got["written_worse"] == (1, 2)
     assert got["median_s"] == 30.0
     assert got["exact_by_hidden"] == {"0": (1, 3), "1": (1, 2), "2": (0, 0), "3": (0, 0)}
+    assert got["exact_where_shown"] == (0, 0)
+    scores[0].shown, scores[1].shown = True, True
+    got = wide.summarize(scores)
+    assert got["exact_where_shown"] == (1, 2)
     lines = wide.table(got)
     assert any(line.startswith("exact") and "2/5" in line and "0.40" in line
                for line in lines)
     assert lines[-1] == "exact by hidden library effects: 0: 1/3, 1: 1/2, 2: 0/0, 3: 0/0"
+    assert lines[-2] == ("exact where the held-out trials show the hidden set (oracle): 1/2 "
+                         "(of 2 seeds with a hidden library effect)")
 
 
 def test_written_model_check_tells_better_from_worse(tmp_path: Path) -> None:
@@ -259,6 +265,31 @@ def test_written_model_check_tells_better_from_worse(tmp_path: Path) -> None:
     assert removal > 0.5 and p > 0.5  # the truth is better than the base: not worse
     removal, p = wide.written_vs_base(ActionModel(), truth, meas, 0.12)
     assert removal < -1.0 and p < 1e-3  # the base written over the truth: worse
+
+
+def test_the_oracle_says_whether_the_held_out_trials_show_the_hidden_set(
+        tmp_path: Path) -> None:
+    # a soft string hidden; the run's second blow is the held-out one (fit.split_masks):
+    # a 20 N blow strikes the string hard, a 1.5 N piano blow never reaches it
+    strong = wide.Blow("held", [(0.0, 0.0), (0.02, 0.0), (0.1, 20.0), (0.3, 20.0)])
+    piano = wide.Blow("piano", [(0.0, 0.0), (0.02, 0.0), (0.1, 1.5), (0.3, 1.5)])
+    string = {"compliant_string": {"stiffness": 2e4}}
+
+    def oracle(blows: list[wide.Blow], hidden: dict) -> tuple[bool | None, str]:
+        d = wide.Draw(0, blows, blows, 0.15, 1.0, hidden, None, {}, None)
+        path = tmp_path / f"run{len(list(tmp_path.iterdir()))}.h5"
+        wide.synth_run(d, d.blows, path, 3)
+        return wide.oracle_shown(d, ms.load(path))
+
+    shown, why = oracle([strong, strong], string)
+    assert shown is True and "removes" in why, why
+    shown, why = oracle([strong, piano], string)
+    assert shown is False and "needs >= 20 %" in why, why
+    # a pair whose second effect the held-out trial does not need: not shown
+    pair = {**string, "drive_dynamics": {"delay": 1e-5, "bandwidth": 1000.0}}
+    shown, why = oracle([strong, strong], pair)
+    assert shown is False and "without drive_dynamics" in why, why
+    assert oracle([strong, strong], {}) == (None, "")
 
 
 @pytest.mark.slow

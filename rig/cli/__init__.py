@@ -579,7 +579,9 @@ def diagnose_cmd(
         console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"diagnosed in {diag.wall_s:.1f} s", markup=False, highlight=False)
     if write is not None and diag.best is None:
-        why = ("the chosen set predicts the held-out data worse than the base model"
+        bad = diag.worse_trial
+        why = (f"the chosen set predicts {bad.label} worse than the base model" if bad else
+               "the chosen set predicts the held-out data worse than the base model"
                if diag.withdrawn else "no candidate explains the residual significantly")
         err.print(f"{why}; {write} was not written",
                   markup=False, highlight=False, soft_wrap=True)

@@ -14,7 +14,7 @@ from rig.analysis import measurement as ms
 from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
-from rig.analysis.diagnose.check import written_removal
+from rig.analysis.diagnose.check import worse_trial, written_removal
 from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
 from rig.analysis.diagnose.notes import stability_notes
 from rig.analysis.diagnose.restarts import _restarts, _valleys
@@ -33,6 +33,7 @@ from rig.analysis.diagnose.search import (
     candidates_for,
     held_out_p,
     judge,
+    judge_off,
     pair_round,
     pairs_of,
     pick_pair,
@@ -141,6 +142,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             level = alpha / max(1, len(out))
             for c in out:
                 judge(c, level, min_gain, min_noise_gain, z_off)
+            judge_off(out, base, by_name, test, state.test_noise_draws is not None, level,
+                      min_gain, min_noise_gain, z_off)
             beats = held_out_p(base, by_name, test, held_out_test == "noise")
             out = rank(out, implies, min_gain, beats, level)
             # an effect implying another is named only if it beats it (rank put it after)
@@ -201,10 +204,14 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                           held_out_test == "noise")
     withdrawn: list[Candidate] = []
     written = None
+    worse = None
     if chosen:  # the model as written, on the held-out data: worse than the base, no claim
         written = written_removal(chosen[-1], base, by_name, test,
                                   {c: v[0] for c, v in base_test.items()})
-        if written is not None and not written > 0:
+        if written is not None and written > 0:  # nor on any one trial, fitted or held out
+            worse = worse_trial(chosen[-1], base, by_name, data, held, alpha,
+                                held_out_test == "noise")
+        if written is not None and not written > 0 or worse is not None:
             withdrawn, chosen = chosen, []
     if first:
         notes += stability_notes(first, base_resid, test)
@@ -231,7 +238,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     return Diagnosis(comp, sigs, {c: v[0] for c, v in base_test.items()}, first, split,
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single, remainder=left, max_effects=1 if single else max_effects,
-                     held_out_trials=held, withdrawn=withdrawn, written_removal=written)
+                     held_out_trials=held, withdrawn=withdrawn, written_removal=written,
+                     worse_trial=worse)
 
 
 def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
@@ -262,6 +270,8 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
     for c in out:
         judge(c, level, ctx["min_gain"], ctx["min_noise_gain"], z_off)
+    judge_off(out, base, by_name, test, state.test_noise_draws is not None, level,
+              ctx["min_gain"], ctx["min_noise_gain"], z_off)
     best = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
     top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
     fitted = (f"of {n_pairs} pairs, the {len(out)} whose start scans lowered the training "

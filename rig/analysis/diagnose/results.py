@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,7 @@ class Candidate:
     p_value: float = 1.0                # one-sided held-out test (before Bonferroni)
     train_gain: float = 0.0             # share of the training error removed
     off_z: float = math.inf             # largest |value - off| / sigma (inf: no off value)
+    off_p: float = math.nan             # held-out p: better than at its off values (nan: untested)
     corr: dict[tuple[str, str], float] = field(default_factory=dict)
     effects: tuple[str, ...] = ()       # the whole set (chosen so far + this one)
     why_not: str = ""                   # the first condition of significance that fails
@@ -174,6 +175,19 @@ def rank(candidates: list[Candidate], implies: Mapping[str, Sequence[str]],
 
 
 @dataclass
+class WorseTrial:
+    """A trial of the run that the written model predicts significantly worse than the
+    base model: its index and label, the share of the base model's error there that the
+    written model removes (negative) and the one-sided p that it is worse."""
+
+    index: int
+    label: str
+    removal: float
+    p_value: float
+    held_out: bool
+
+
+@dataclass
 class Diagnosis:
     comparison: cp.Comparison
     signatures: list[sg.ResidualSignature]
@@ -194,6 +208,9 @@ class Diagnosis:
     # base model (not claimed); written_removal: its share of the held-out error removed
     withdrawn: list[Candidate] = field(default_factory=list)
     written_removal: float | None = None
+    # the run's trial the written set predicted significantly worse than the base (the set
+    # is then withdrawn though its held-out error fell; check.worse_trial)
+    worse_trial: WorseTrial | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
@@ -210,6 +227,8 @@ class Diagnosis:
                 "remainder": self.remainder.as_dict() if self.remainder is not None else None,
                 "withdrawn": [c.as_dict() for c in self.withdrawn],
                 "written_removal": self.written_removal,
+                "worse_trial": (None if self.worse_trial is None
+                                else asdict(self.worse_trial)),
                 "held_out_trials": list(self.held_out_trials),
                 "base_comparison": self.comparison.as_dict()}
 
@@ -276,6 +295,19 @@ class Diagnosis:
             worse = -(self.written_removal or 0.0)
             floor = (f"; the base model's held-out residual: {rem.head()}"
                      if rem is not None else "")
+            bad = self.worse_trial
+            if bad is not None:
+                kept = (self.written_removal or 0.0) * 100
+                return (f"no effect is claimed: {which}, chosen on the training data, "
+                        f"removes {kept:.1f} % of the held-out error at its final values as "
+                        f"they would be written, but predicts "
+                        f"{bad.label} (a {'held-out' if bad.held_out else 'training'} "
+                        f"trial) worse than the base model ({-bad.removal * 100:.0f} % more "
+                        f"error there, p = {bad.p_value:.2g}; "
+                        f"{w.value_text(only_own=False)}){floor}. It trades one blow's fit "
+                        "for the others': physics outside the library (a user effect, "
+                        "docs/effects.md, tried with --extra file.py:Class), base "
+                        "parameters off (--base) or more blows may tell")
             return (f"no effect is claimed: {which}, chosen on the training data, predicts the "
                     f"held-out data worse than the base model at its final values as they "
                     f"would be written ({worse * 100:.1f} % more held-out error; "
