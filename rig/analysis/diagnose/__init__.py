@@ -59,11 +59,8 @@ A candidate counts as significant only when all hold:
   (stats.improvement_test, Diebold-Mariano type, Newey-West within each trial's
   channel);
 - a parameter that has an "off" value (EffectParameter.off) is not within
-  ``z_off`` (1.96) standard errors of it for every such parameter, or the set at its
-  values predicts the held-out data better than with those parameters at off (the
-  round's test at the round's level, ``search.off_p``: a valley of several off-valued
-  parameters leaves each one's uncertainty wide while the data fix their combination):
-  an effect whose own parameters are indistinguishable from "off" explains nothing. An
+  ``z_off`` (1.96) standard errors of it for every such parameter: an effect
+  whose own parameters are indistinguishable from "off" explains nothing. An
   effect that switches on another candidate (``Effect.implies``) must pass this
   on its own parameters, or it is not named: the effect it implies is;
 - (the best candidate only, then the next) from the second round on, the set without
@@ -124,7 +121,6 @@ from rig.analysis.diagnose.restarts import (
 from rig.analysis.diagnose.results import Candidate, Diagnosis, WorseTrial, _unit, rank
 from rig.analysis.diagnose.search import (
     MAX_READOPT,
-    OFF_WHY,
     State,
     _add_input_noise,
     _backward,
@@ -141,20 +137,18 @@ from rig.analysis.diagnose.search import (
     evaluate_candidate,
     held_out_p,
     judge,
-    judge_off,
-    off_p,
 )
 from rig.analysis.diagnose.write import write_model
 
 __all__ = [
-    "BOX_STARTS_PER_PARAM", "MAX_READOPT", "OFF_WHY", "SAME_MINIMUM", "SIMEX_DRAWS",
+    "BOX_STARTS_PER_PARAM", "MAX_READOPT", "SAME_MINIMUM", "SIMEX_DRAWS",
     "VALLEY_BISECTIONS", "VALLEY_CORR", "VALLEY_NOISE_DRAWS", "VALLEY_PARTNER_NFEV",
     "VALLEY_STARTS", "Candidate", "Diagnosis", "Minimum", "State", "_Line", "_add_input_noise",
     "_backward", "_box_starts", "_converge", "_evaluate", "_instance", "_instances",
     "_moves_input", "_noise_draws", "_noise_free_gap", "_off_z", "_pair_corr", "_pick",
     "_restarts", "_round", "_set_effects", "_set_model", "_unit", "_unneeded", "_valley_pairs",
     "_valleys", "_without", "_without_newcomer", "candidates_for", "diagnose",
-    "evaluate_candidate", "ft", "held_out_p", "judge", "judge_off", "off_p", "rank",
+    "evaluate_candidate", "ft", "held_out_p", "judge", "rank",
     "stability_notes", "worse_trial", "WorseTrial", "write_model",
 ]
 

@@ -33,7 +33,6 @@ from rig.analysis.diagnose.search import (
     candidates_for,
     held_out_p,
     judge,
-    judge_off,
     pair_round,
     pairs_of,
     pick_pair,
@@ -142,8 +141,6 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             level = alpha / max(1, len(out))
             for c in out:
                 judge(c, level, min_gain, min_noise_gain, z_off)
-            judge_off(out, base, by_name, test, state.test_noise_draws is not None, level,
-                      min_gain, min_noise_gain, z_off)
             beats = held_out_p(base, by_name, test, held_out_test == "noise")
             out = rank(out, implies, min_gain, beats, level)
             # an effect implying another is named only if it beats it (rank put it after)
@@ -270,8 +267,6 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
     for c in out:
         judge(c, level, ctx["min_gain"], ctx["min_noise_gain"], z_off)
-    judge_off(out, base, by_name, test, state.test_noise_draws is not None, level,
-              ctx["min_gain"], ctx["min_noise_gain"], z_off)
     best = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
     top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
     fitted = (f"of {n_pairs} pairs, the {len(out)} whose start scans lowered the training "

@@ -69,7 +69,6 @@ class Candidate:
     p_value: float = 1.0                # one-sided held-out test (before Bonferroni)
     train_gain: float = 0.0             # share of the training error removed
     off_z: float = math.inf             # largest |value - off| / sigma (inf: no off value)
-    off_p: float = math.nan             # held-out p: better than at its off values (nan: untested)
     corr: dict[tuple[str, str], float] = field(default_factory=dict)
     effects: tuple[str, ...] = ()       # the whole set (chosen so far + this one)
     why_not: str = ""                   # the first condition of significance that fails

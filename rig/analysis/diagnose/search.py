@@ -155,9 +155,6 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
                      test_resid=resid)
 
 
-OFF_WHY = "its own parameters are indistinguishable from their off values"
-
-
 def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
           z_off: float) -> None:
     """Set ``c.significant`` and, if not, ``c.why_not`` (the first condition that fails)."""
@@ -171,56 +168,13 @@ def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
                                          "noise"),
         (c.p_value <= alpha, f"held-out improvement could be noise (p = {c.p_value:.2g} > "
                              f"{alpha:.2g})"),
-        (c.off_z >= z_off or c.off_p <= alpha,  # inf (no off value) passes
-         OFF_WHY),
+        (c.off_z >= z_off,  # inf (no off value) passes
+         "its own parameters are indistinguishable from their off values"),
         (not _on_prior_bound(c), "its scale is on the bound of its prior range: the data "
                                  "ask for more than a base parameter a few per cent off"),
     ]
     c.significant = all(ok for ok, _ in checks)
     c.why_not = next((why for ok, why in checks if not ok), "")
-
-
-def off_p(c: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
-          test: ft.Data, noise: bool) -> float:
-    """The held-out p that ``c``'s set at its values predicts better than the same set with
-    its newcomers' parameters that have an off value (``EffectParameter.off``) at it, the
-    rest kept: the off rule asked of the predictions instead of the parameters, by the
-    round's own test (``noise``: the noise-model test, else the HAC one). A valley of
-    several off-valued parameters leaves each parameter's own uncertainty wide while the
-    data fix their combination away from off (measured, issue 39, wide benchmark
-    development seed 179: a back check 2.4 times as stiff, fitted with |value - off| <=
-    0.85 sigma on each of its three parameters, removed 80 % of the held-out error at
-    p = 0). 1.0 when the model cannot be simulated or nothing has an off value."""
-    names = c.effects or (c.name,)
-    new = [by_name[n] for n in (c.name, c.partner) if n]
-    values = dict(c.values)
-    moved = False
-    for cls in new:
-        for par in cls.parameters:
-            key = f"{cls.name}.{par.name}"
-            if par.off is not None and key in values:
-                values[key], moved = par.off, True
-    if not moved or c.test_resid is None:
-        return 1.0
-    try:
-        model = _set_model(base, by_name, names, values, test.measurements[0].rate)
-        r_off = test.residuals(test.simulate(model))
-        if noise:
-            return noise_p(test, r_off, c.test_resid, ft.input_noise_responses(model, test))
-    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-        return 1.0
-    return stats.improvement_test(r_off, c.test_resid, test.segments())[1]
-
-
-def judge_off(out: Sequence[Candidate], base: ActionModel,
-              by_name: Mapping[str, type[Effect]], test: ft.Data, noise: bool, level: float,
-              min_gain: float, min_noise_gain: float, z_off: float) -> None:
-    """Judge again, with ``off_p``, the candidates that fail only the off rule (each of
-    their off-valued parameters within ``z_off`` of its uncertainty of off)."""
-    for c in out:
-        if not c.significant and c.why_not == OFF_WHY and c.train_gain > 0:
-            c.off_p = off_p(c, base, by_name, test, noise)
-            judge(c, level, min_gain, min_noise_gain, z_off)
 
 
 def _on_prior_bound(c: Candidate) -> bool:
