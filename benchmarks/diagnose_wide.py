@@ -327,8 +327,8 @@ class Score:
     written_p: float | None = None
     seconds: float = math.nan
     misses: list[str] = field(default_factory=list)
-    # the oracle (``shown``): do the run's held-out trials, split as diagnose splits them,
-    # show the hidden library set at its true values? None: nothing hidden
+    # the oracle (``oracle_shown``): do the run's trials, on both sides of diagnose's
+    # split, show the hidden library set at its true values? None: nothing hidden
     shown: bool | None = None
     shown_why: str = ""
 

@@ -104,6 +104,18 @@ def noise_p(test: ft.Data, r0: np.ndarray, r1: np.ndarray,
     return stats.weighted_noise_model_test(r0, r1, test.noise_vector(), responses, w)[1]
 
 
+def model_p(model: ActionModel, test: ft.Data, r0: np.ndarray, r1: np.ndarray,
+            noise: bool) -> float:
+    """The one-sided p that ``r1`` is smaller in mean square than ``r0``, ``model``'s
+    residual on ``test``: ``noise_p`` with the input force's noise drawn through ``model``
+    when ``noise`` (and the input is the measured force), else ``stats.improvement_test``.
+    Simulation errors propagate to the caller."""
+    resp = ft.input_noise_responses(model, test, r0=r0) if noise else None
+    if resp is not None:
+        return noise_p(test, r0, r1, resp)
+    return stats.improvement_test(r0, r1, test.segments())[1]
+
+
 def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, test: ft.Data,
                        state: State, max_nfev: int, min_gain: float, min_noise_gain: float,
                        scan: int = 4, scan_labels: Sequence[str] | None = None) -> Candidate:
@@ -211,11 +223,7 @@ def _without(c: Candidate, name: str, template: Candidate, base: ActionModel,
         model = _set_model(base, by_name, keep, vals, test.measurements[0].rate)
         preds = test.simulate(model)
         resid = test.residuals(preds)
-        resp = ft.input_noise_responses(model, test, r0=resid) if noise else None
-        if resp is not None:
-            p = noise_p(test, resid, c.test_resid, resp)
-        else:
-            _, p = stats.improvement_test(resid, c.test_resid, test.segments())
+        p = model_p(model, test, resid, c.test_resid, noise)
         if p <= level:
             return p, None
         ms_ = test.channel_ms(preds)
@@ -455,10 +463,7 @@ def refit_without_p(c: Candidate, name: str, base: ActionModel,
             vals = dict(res.values)
         model = _set_model(base, by_name, keep, vals, rate)
         resid = test.residuals(test.simulate(model))
-        resp = ft.input_noise_responses(model, test, r0=resid) if noise else None
-        if resp is not None:
-            return noise_p(test, resid, c.test_resid, resp)
-        return stats.improvement_test(resid, c.test_resid, test.segments())[1]
+        return model_p(model, test, resid, c.test_resid, noise)
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
         return 1.0
 
