@@ -68,7 +68,10 @@ test and gain rule (each effect needed when there are several). Where they do no
 string a piano blow never reaches, base offsets that make the true effect alone worse than
 none), the exact-set figure counts a miss no method that credits only what the held-out
 data show can avoid; "exact where the run shows the hidden set on both sides" is the
-method's share where the data allow it.
+method's share where the data allow it. The same oracle with the library's base-parameter
+scales calibrated jointly on the training trials for every model it compares
+(``calibrate=True``) says how many more seeds a method that calibrates the whole base beside
+each candidate could show (and how many it would lose).
 """
 
 from __future__ import annotations
@@ -331,6 +334,10 @@ class Score:
     # split, show the hidden library set at its true values? None: nothing hidden
     shown: bool | None = None
     shown_why: str = ""
+    # the same with the library's base-parameter scales calibrated jointly on the training
+    # trials for every model compared (``oracle_shown(calibrate=True)``)
+    shown_calibrated: bool | None = None
+    shown_calibrated_why: str = ""
 
 
 def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
@@ -395,8 +402,25 @@ def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float 
     return 1.0 - float(np.mean(r_written ** 2) / np.mean(r_base ** 2)), p
 
 
+CALIBRATION_NFEV = 15  # least-squares steps of the oracle's joint base calibration
+
+
+def calibrate_base(model: Any, data: Any) -> tuple[Any, dict[str, float]]:
+    """``model`` with the library's base-parameter scales (rig.model.base_params: the list
+    ``rig diagnose --base`` offers one at a time) fitted jointly on ``data`` within their
+    prior ranges, and the fitted scales by candidate name."""
+    from rig.analysis import fit as ft
+    from rig.model import base_params as bp
+
+    groups = list(bp.CANDIDATES.values())
+    f = ft.fit(model, data, [f"{g.name}.scale" for g in groups], add=groups, jobs=1,
+               max_nfev=CALIBRATION_NFEV)
+    return (ft.rebuild(model, groups, f.values, f.targets, rate=data.measurements[0].rate),
+            {k.removesuffix(".scale"): v for k, v in f.values.items()})
+
+
 def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: float = 0.2,
-                 align_s: float = 5e-4) -> tuple[bool | None, str]:
+                 align_s: float = 5e-4, calibrate: bool = False) -> tuple[bool | None, str]:
     """The oracle: do the run's trials, on both sides of diagnose's split, show the hidden
     library effects? The base model and the base model with the hidden library effects at
     their TRUE values (the sensor chain's filter as the library's ``load_cell_filter`` at
@@ -409,7 +433,14 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
     (None, "") with nothing hidden. Where the oracle fails, the data cannot both teach the
     truth and confirm it against the base model, whatever a method fits: no method that
     credits only what the held-out data show chooses it there (a best case, not a bound: a
-    fit may also absorb the base offsets and do better, or worse)."""
+    fit may also absorb the base offsets and do better, or worse).
+
+    With ``calibrate`` every model compared (the base, the true set, the set without one
+    effect) first has the library's base-parameter scales (rig.model.base_params, the list
+    ``rig diagnose --base`` offers one at a time) fitted jointly, within their prior ranges,
+    on the run's training trials: whether the truth would show to a method that calibrates
+    the whole base beside each candidate (the scales fitted on the training side only, as a
+    method could; the drawn offsets of parameters outside that list stay off)."""
     from rig.analysis import fit as ft
     from rig.analysis import measurement as ms
     from rig.analysis.diagnose.search import candidates_for, noise_p
@@ -422,15 +453,23 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
     data = ft.Data.build(meas, "force", d.window, None, align_s=align_s, windows=windows)
     train_m, test_m = ft.split_masks(data)
     rate = meas[0].rate
-    base = ft.rebuild(ActionModel(), rate=rate)
+
+    train_side = data.subset(train_m)
+    calibrated: dict[tuple[str, ...], Any] = {}
 
     def model(names: Sequence[str]) -> Any:
-        return ft.rebuild(ActionModel(Parameters.default(), [{n: d.hidden[n]} for n in names]),
-                          rate=rate)
+        m = ft.rebuild(ActionModel(Parameters.default(), [{n: d.hidden[n]} for n in names]),
+                       rate=rate)
+        if not calibrate:
+            return m
+        key = tuple(sorted(names))
+        if key not in calibrated:
+            calibrated[key] = calibrate_base(m, train_side)[0]
+        return calibrated[key]
 
     def test_of(side: Any, r_names: Sequence[str], names: Sequence[str]
                 ) -> tuple[float, float]:
-        m0 = base if not r_names else model(r_names)
+        m0 = model(r_names)
         p0, p1 = side.simulate(m0), side.simulate(model(names))
         e0, e1 = side.channel_ms(p0), side.channel_ms(p1)
         mean0 = float(np.mean([v[0] for v in e0.values()]))
@@ -482,6 +521,7 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
                   final.sigma if final else {})
         s.seconds = seconds
         s.shown, s.shown_why = oracle_shown(d, meas)
+        s.shown_calibrated, s.shown_calibrated_why = oracle_shown(d, meas, calibrate=True)
         if final is not None:
             out = Path(tmp) / "written.yaml"
             dg.write_model(None, diag, out)
@@ -494,6 +534,28 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
     if rem is not None:
         notes.append(f"left {rem.ratio:.2g} x the floor (p = {rem.p:.2g})")
     return d, s, notes
+
+
+def oracles_of(d: Draw) -> tuple[tuple[bool | None, str], tuple[bool | None, str]]:
+    """Both oracles of one seed's run (the base as drawn; the base calibrated jointly)."""
+    from rig.analysis import measurement as ms
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = Path(tmp) / "run.h5"
+        synth_run(d, d.blows, run, d.seed)
+        meas = ms.load(run)
+    return oracle_shown(d, meas), oracle_shown(d, meas, calibrate=True)
+
+
+def oracle_table(oracles: Sequence[tuple[tuple[bool | None, str], tuple[bool | None, str]]]
+                 ) -> str:
+    """The oracles' counts over the seeds with a hidden library effect: shown as drawn,
+    shown calibrated, and the two ways they differ."""
+    pairs = [(a[0], b[0]) for a, b in oracles if a[0] is not None]
+    return (f"seeds with a hidden library effect: {len(pairs)}; shown: "
+            f"{sum(bool(a) for a, _ in pairs)}; shown with the base calibrated jointly: "
+            f"{sum(bool(b) for _, b in pairs)} (gained {sum(bool(b) and not a for a, b in pairs)}"
+            f", lost {sum(bool(a) and not b for a, b in pairs)})")
 
 
 def summarize(scores: Sequence[Score]) -> dict[str, Any]:
@@ -516,6 +578,14 @@ def summarize(scores: Sequence[Score]) -> dict[str, Any]:
             # of diagnose's split (oracle)
             "exact_where_shown": (sum(s.exact for s in scores if s.shown),
                                   sum(bool(s.shown) for s in scores)),
+            # the seeds shown once the base is calibrated jointly, and of them those the
+            # uncalibrated oracle does not show
+            # (None where no seed has the calibrated oracle: an older --json file)
+            "shown_calibrated": ((sum(bool(s.shown_calibrated) for s in scores),
+                                  sum(bool(s.shown_calibrated) and not s.shown
+                                      for s in scores))
+                                 if any(s.shown_calibrated is not None for s in scores)
+                                 else None),
             # where it misses: the exact share by the number of hidden library effects
             "exact_by_hidden": {str(k): (sum(s.exact for s in scores if len(s.hidden) == k),
                                          sum(len(s.hidden) == k for s in scores))
@@ -542,6 +612,10 @@ def table(summary: Mapping[str, Any]) -> list[str]:
         hid = sum(m for k, (_, m) in summary.get("exact_by_hidden", {}).items() if k != "0")
         lines.append(f"exact where the run shows the hidden set on both sides (oracle): {n}/{m} "
                      f"(of {hid} seeds with a hidden library effect)")
+        cal = summary.get("shown_calibrated")
+        if cal is not None:
+            lines.append(f"shown with the base calibrated jointly on the training trials "
+                         f"(oracle): {cal[0]} of {hid} ({cal[1]} not shown uncalibrated)")
     by = summary.get("exact_by_hidden", {})
     if by:
         lines.append("exact by hidden library effects: " + ", ".join(
@@ -573,6 +647,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--json", type=Path, default=None, help="write seeds and summary here")
     ap.add_argument("--draws-only", action="store_true",
                     help="print the seeds' draws without diagnosing")
+    ap.add_argument("--oracle-only", action="store_true",
+                    help="synthesize each seed's run and print the two oracles (the base as "
+                         "drawn, and calibrated jointly) without diagnosing")
     ap.add_argument("--table", type=Path, default=None,
                     help="print the summary table of an earlier --json file and stop")
     args = ap.parse_args(argv)
@@ -588,10 +665,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(banner, file=sys.stderr, flush=True)
     scores: list[Score] = []
     records: list[dict[str, Any]] = []
+    oracles: list[tuple[tuple[bool | None, str], tuple[bool | None, str]]] = []
     for seed in seeds:
         d = draw(seed)
         print(f"seed {seed}: {d.text()}", flush=True)
         if args.draws_only:
+            continue
+        if args.oracle_only:
+            oracles.append(oracles_of(d))
+            for what, (shown, why) in zip(("oracle", "calibrated"), oracles[-1], strict=True):
+                if shown is not None:
+                    print(f"  {what}: {'shown' if shown else 'not shown'}: {why}", flush=True)
             continue
         try:
             _, s, notes = run_seed(seed, args.jobs, args.weights, args.base)
@@ -615,6 +699,9 @@ def main(argv: Sequence[str] | None = None) -> None:
             args.json.write_text(json.dumps({"seeds": records, "summary": summarize(scores)},
                                             indent=1))
     if args.draws_only:
+        return
+    if args.oracle_only:
+        print(oracle_table(oracles), flush=True)
         return
     print("\n".join(table(summarize(scores))), flush=True)
 

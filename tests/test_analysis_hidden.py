@@ -125,6 +125,7 @@ def test_novel_effect_not_in_library(tmp_path: Path) -> None:
     assert top.kind == "oscillation" and abs(top.frequency_hz - 150.0) < 25.0, top.text()
     assert "whippen_angle" in diag.verdict()
     assert diag.verdict().startswith("no library effect explains"), diag.verdict()
+    assert "base parameters a few per cent off" in diag.verdict(), diag.verdict()
     assert diag.remainder is not None and diag.remainder.significant, diag.verdict()
     assert diag.remainder.places[0].signature.channel == "whippen_angle", diag.verdict()
     # the same effect as a user plug-in (this file, named by path) makes the error fall

@@ -242,3 +242,23 @@ def test_a_scale_on_its_prior_bound_is_not_claimed() -> None:
                      10.0, False, p_value=1e-5, train_gain=0.5)
     dg.judge(c, 0.01, 0.2, 3.0, 1.96)
     assert c.significant
+
+
+def test_a_residual_no_effect_explains_points_to_the_base_parameters() -> None:
+    # no candidate significant and no remainder measured: the verdict names base parameters
+    # off as a cause that can hide an effect, and --base unless its candidates were tried
+    lone = _cand("key_liftoff", 0.05)
+    lone.significant = False
+    comparison = SimpleNamespace(as_dict=dict)
+    d = dg.Diagnosis(comparison, [], {"hammer_angle": 1.0}, [lone], "", 0.2,  # type: ignore[arg-type]
+                     3.0)
+    verdict = d.verdict()
+    assert verdict.startswith("no library effect explains the residual"), verdict
+    assert verdict.endswith("can hide an effect: try --base, or fit those you doubt (rig fit)"), \
+        verdict
+    scale = _cand(MASS, 0.1)
+    scale.significant = False
+    d.candidates = [lone, scale]
+    verdict = d.verdict()
+    assert "the base-parameter candidates (--base) explain none of it alone" in verdict, verdict
+    assert "try --base" not in verdict, verdict

@@ -311,9 +311,9 @@ class Diagnosis:
                     f"held-out data worse than the base model at its final values as they "
                     f"would be written ({worse * 100:.1f} % more held-out error; "
                     f"{w.value_text(only_own=False)}){floor}. Its fit does not carry to "
-                    "data it did not see: more or other blows, or physics outside the "
-                    "library (a user effect, docs/effects.md, tried with --extra "
-                    "file.py:Class), may tell")
+                    "data it did not see: more or other blows, base parameters off "
+                    "(--base), or physics outside the library (a user effect, "
+                    "docs/effects.md, tried with --extra file.py:Class), may tell")
         if rem is not None and not rem.significant:
             return ("no missing effect can be shown: no candidate removes a significant share "
                     f"of the held-out error, and the base model's held-out residual is within "
@@ -327,7 +327,19 @@ class Diagnosis:
                 f"share of the held-out error, and the residual stands above its noise "
                 f"floor{floor}. Where it is: {where}. If the physics is missing from the "
                 "library, write it as a user effect (docs/effects.md) and try it with "
-                "--extra file.py:Class")
+                "--extra file.py:Class" + self._base_hint())
+
+    def _base_hint(self) -> str:
+        """What base parameters off may do to a residual no library effect explains: a
+        base a few per cent off leaves such a residual itself and can make a true effect
+        predict worse than none (docs/performance.md, issue 39: the wide benchmark's
+        oracle)."""
+        if any(bp.is_base(c.name) for c in self.candidates):
+            return ("; the base-parameter candidates (--base) explain none of it alone, but "
+                    "several base parameters off together can: fit those you doubt (rig fit)")
+        return ("; base parameters a few per cent off (a heavier hammer head, softer felt) "
+                "leave such a residual too and can hide an effect: try --base, or fit those "
+                "you doubt (rig fit)")
 
     def _left_text(self) -> str:
         """What the chosen set leaves, against its noise floor (empty when not tested)."""
