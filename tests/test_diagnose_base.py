@@ -254,8 +254,8 @@ def test_a_residual_no_effect_explains_points_to_the_base_parameters() -> None:
                      3.0)
     verdict = d.verdict()
     assert verdict.startswith("no library effect explains the residual"), verdict
-    assert verdict.endswith("can hide an effect: try --base, or fit those you doubt (rig fit)"), \
-        verdict
+    assert verdict.endswith("can hide an effect: try --base, or fit those you doubt "
+                            "(rig fit --param PATH)"), verdict
     scale = _cand(MASS, 0.1)
     scale.significant = False
     d.candidates = [lone, scale]

@@ -334,12 +334,12 @@ class Diagnosis:
         base a few per cent off leaves such a residual itself and can make a true effect
         predict worse than none (docs/performance.md, issue 39: the wide benchmark's
         oracle)."""
+        fit = "fit those you doubt (rig fit --param PATH)"
         if any(bp.is_base(c.name) for c in self.candidates):
             return ("; the base-parameter candidates (--base) explain none of it alone, but "
-                    "several base parameters off together can: fit those you doubt (rig fit)")
+                    f"several base parameters off together can: {fit}")
         return ("; base parameters a few per cent off (a heavier hammer head, softer felt) "
-                "leave such a residual too and can hide an effect: try --base, or fit those "
-                "you doubt (rig fit)")
+                f"leave such a residual too and can hide an effect: try --base, or {fit}")
 
     def _left_text(self) -> str:
         """What the chosen set leaves, against its noise floor (empty when not tested)."""
