@@ -453,19 +453,16 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
     data = ft.Data.build(meas, "force", d.window, None, align_s=align_s, windows=windows)
     train_m, test_m = ft.split_masks(data)
     rate = meas[0].rate
-
     train_side = data.subset(train_m)
-    calibrated: dict[tuple[str, ...], Any] = {}
+    models: dict[tuple[str, ...], Any] = {}  # each set built (and calibrated) once
 
     def model(names: Sequence[str]) -> Any:
-        m = ft.rebuild(ActionModel(Parameters.default(), [{n: d.hidden[n]} for n in names]),
-                       rate=rate)
-        if not calibrate:
-            return m
-        key = tuple(sorted(names))
-        if key not in calibrated:
-            calibrated[key] = calibrate_base(m, train_side)[0]
-        return calibrated[key]
+        key = tuple(names)  # callers keep the hidden set's order
+        if key not in models:
+            m = ft.rebuild(ActionModel(Parameters.default(),
+                                       [{n: d.hidden[n]} for n in key]), rate=rate)
+            models[key] = calibrate_base(m, train_side)[0] if calibrate else m
+        return models[key]
 
     def test_of(side: Any, r_names: Sequence[str], names: Sequence[str]
                 ) -> tuple[float, float]:
