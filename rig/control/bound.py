@@ -316,7 +316,11 @@ def best_demand(model: plant.DriveModel, reference: np.ndarray, limits: Limits,
     ``time_limit_s``). ``switch_step_n``: the smallest demand change a mode switch is made
     with (larger: only reversals of that size). ``error_hint_n``: the error expected; the
     lower side of the error constraint is kept only where r_j exceeds it (0: everywhere
-    r_j > 0, which can only make the bound larger)."""
+    r_j > 0, which can only make the bound larger). The force at each tick: a model with a
+    ``read_age_s`` is refused (its read between ticks is not in this programme)."""
+    if model.read_age_s:
+        raise InputError(f"best_demand: {model.name} reads {model.read_age_s * 1e3:g} ms "
+                         "before the tick; this programme models the force at the tick")
     r = np.asarray(reference, float)
     n = r.size
     dt = 1.0 / control_hz

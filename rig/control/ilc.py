@@ -699,14 +699,16 @@ class Learner:
         trials' misses (load cell minus the fitted model's force for the demand written)
         that agree with the newest one within the noise, averaged.
 
-        The miss is mostly the plant's own, not the table's: the action's reaction on the
-        load cell while the key moves as the profile asks (simulated rig, seeds 201-210 in
-        lock-step, `benchmarks/learn_cli.py --lockstep`: trials 2-5 and the next run, five
-        different tables, missed +0.33 to +0.41 N on average over forte's release, their
-        misses correlating 0.10-0.35 cycle by cycle where the noise alone gives 0). One
-        trial's miss, fitted down to its noise, leaves up to the local test's bound (about
-        4.2 standard errors, 0.23 N over 16 cycles) unfitted, and the plan then misses the
-        release by that plus its own maximum. Averaged over m trials the noise and so
+        A miss that repeats is the plant's, not the table's, and pooling learns it to
+        below one trial's noise (simulated rig, seeds 201-210 in lock-step,
+        `benchmarks/learn_cli.py --lockstep`: trials 2-5 and the next run, five different
+        tables, missed +0.33 to +0.41 N on average over forte's release; that one was the
+        models' reading at the tick instead of one acquisition sample before it, since
+        modelled, ``plant.DriveModel.read_age_s``, and the simulated drive has no miss
+        left; a real drive's unmodelled dynamics repeat the same way). One trial's miss,
+        fitted down to its noise, leaves up to the local test's bound (about 4.2 standard
+        errors, 0.23 N over 16 cycles) unfitted, and the plan then misses the release by
+        that plus its own maximum. Averaged over m trials the noise and so
         what is left fall by sqrt(m). A trial whose miss differs
         from the newest's beyond the noise of the difference (``within_noise`` at twice the
         variance: the table changed what the plant does) is left out. Without more agreeing

@@ -27,6 +27,7 @@ The kept table is written as a learned-feedforward record (rig.control.records) 
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -117,6 +118,19 @@ UNCALIBRATED_LOAD_CELL = (
     "remove; run `rig calibrate loadcell` first")
 
 
+def drive_models(cfg: RigConfig, motor: dict[str, Any] | None
+                 ) -> tuple[plant.DriveModel, ...]:
+    """The drive models the update inverts: the motor calibration's (``motor``: its record,
+    if one is in use), the thesis's single and rise/fall models; each trial picks the one
+    that explains it best, gain re-estimated. Each reads the force as the learner does
+    (``load_cell_at_cycles``): the acquisition's sample before each tick, one sample
+    period old (``plant.DriveModel.read_age_s``)."""
+    age = 1.0 / cfg.rates.acquisition_hz
+    return tuple(dataclasses.replace(m, read_age_s=age)
+                 for m in [plant.from_motor_record(motor) if motor else None,
+                           *plant.thesis_models()] if m is not None)
+
+
 def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None,
           lockstep: bool = False, factor: float = ilc.DEFAULT_LEARNING_FACTOR,
           on_line: Callable[[str], None] | None = None,
@@ -143,10 +157,8 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     filt = (ilc.LearningFilter.from_record(motor, hz, factor) if motor is not None
             else ilc.LearningFilter.default(hz, cfg.loop.advance_s, factor))
     noise = backends.load_cell_noise_n(cfg)
-    # the drive models the update inverts: the motor calibration's, the thesis's single and
-    # rise/fall models; each trial picks the one that explains it best, gain re-estimated
-    models = tuple(m for m in [plant.from_motor_record(motor) if motor else None,
-                               *plant.thesis_models()] if m is not None)
+    models = drive_models(cfg, motor)
+    age = models[0].read_age_s
     # the learner's own copy of the loop's controller (none for open_loop: the feedforward
     # is the demand, and the learner may plan it, ilc.Learner.plans)
     controller = (None if cfg.loop.controller == "open_loop"
@@ -158,13 +170,14 @@ def learn(profile_path: Path, cfg: RigConfig, n: int, *, out: Path | None = None
     method = ("model-based (Newton-type, noise-aware"
               + (", minimax plan" if learner.plans else "") + ")" if learner.model_based
               else f"P-type (more than {ilc.MAX_MODEL_POINTS} cycles)")
-    filt_meta = {"method": method, "models": [m.name for m in models],
+    filt_meta = {"method": method, "models": [m.name for m in models], "read_age_s": age,
                  "controller": cfg.loop.controller, "step": factor,
                  "noise_n": noise, "gain_n_per_n": filt.gain, "lead_cycles": filt.lead,
                  "q_cutoff_hz": filt.q_cutoff_hz, "source": filt.source}
     if learner.model_based:
         say(f"learning {profile.name} over up to {n} trials; {method} update through "
-            f"{', '.join(m.name for m in models)}; load-cell noise {noise:.3f} N; "
+            f"{', '.join(m.name for m in models)} (reading the load cell "
+            f"{age * 1e3:g} ms before each tick); load-cell noise {noise:.3f} N; "
             f"controller {cfg.loop.controller}")
     else:
         say(f"learning {profile.name} over up to {n} trials; P-type learning filter: gain "
