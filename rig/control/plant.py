@@ -55,7 +55,7 @@ class DriveModel(RiseFall):
     d_{j-1}: y_j = [A(T - age) x_{j-1} + B(T - age) d_{j-1}]_0. Left out, the model
     misses age x the force's rate (measured on the simulated rig, seeds 201-210 in
     lock-step: -0.19 N on forte's 375 N/s rise, +0.38 N on its 750 N/s release, in every
-    trial), and the learned release kept a third of it (-0.15 to -0.20 N over the ramp)."""
+    trial), and the learned release kept about half of it (-0.15 to -0.20 N over the ramp)."""
 
     read_age_s: float = 0.0
 
