@@ -47,7 +47,9 @@ A candidate counts as significant only when all hold:
   of at least ``min_noise_gain`` times the channel's noise variance;
 - the held-out improvement passes a one-sided test of the mean difference of
   squared residuals at level ``alpha`` divided by the number of candidates in the
-  round (Bonferroni: the whole round's false-alarm rate is at most ``alpha``).
+  round that can act on the data (Bonferroni: the whole round's false-alarm rate is at
+  most ``alpha``; ``search.inert``: a candidate none of whose parameters moves the
+  prediction is left out of the count and of the search).
   By default (``held_out_test="noise"``) its variance comes from a noise model
   of the held-out trials (white output noise plus the model's simulated response to
   the input force's noise), so another missing effect's misfit is not taken for
@@ -120,6 +122,7 @@ from rig.analysis.diagnose.restarts import (
 )
 from rig.analysis.diagnose.results import Candidate, Diagnosis, WorseTrial, _unit, rank
 from rig.analysis.diagnose.search import (
+    INERT_WHY,
     MAX_READOPT,
     State,
     _add_input_noise,
@@ -136,19 +139,20 @@ from rig.analysis.diagnose.search import (
     candidates_for,
     evaluate_candidate,
     held_out_p,
+    inert,
     judge,
 )
 from rig.analysis.diagnose.write import write_model
 
 __all__ = [
-    "BOX_STARTS_PER_PARAM", "MAX_READOPT", "SAME_MINIMUM", "SIMEX_DRAWS",
+    "BOX_STARTS_PER_PARAM", "INERT_WHY", "MAX_READOPT", "SAME_MINIMUM", "SIMEX_DRAWS",
     "VALLEY_BISECTIONS", "VALLEY_CORR", "VALLEY_NOISE_DRAWS", "VALLEY_PARTNER_NFEV",
     "VALLEY_STARTS", "Candidate", "Diagnosis", "Minimum", "State", "_Line", "_add_input_noise",
     "_backward", "_box_starts", "_converge", "_evaluate", "_instance", "_instances",
     "_moves_input", "_noise_draws", "_noise_free_gap", "_off_z", "_pair_corr", "_pick",
     "_restarts", "_round", "_set_effects", "_set_model", "_unit", "_unneeded", "_valley_pairs",
     "_valleys", "_without", "_without_newcomer", "candidates_for", "diagnose",
-    "evaluate_candidate", "ft", "held_out_p", "judge", "rank",
+    "evaluate_candidate", "ft", "held_out_p", "inert", "judge", "rank",
     "stability_notes", "worse_trial", "WorseTrial", "write_model",
 ]
 

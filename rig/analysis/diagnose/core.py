@@ -20,6 +20,7 @@ from rig.analysis.diagnose.notes import stability_notes
 from rig.analysis.diagnose.restarts import _restarts, _valleys
 from rig.analysis.diagnose.results import Candidate, Diagnosis, rank
 from rig.analysis.diagnose.search import (
+    INERT_WHY,
     MAX_READOPT,
     State,
     _add_input_noise,
@@ -32,6 +33,7 @@ from rig.analysis.diagnose.search import (
     above_floor,
     candidates_for,
     held_out_p,
+    inert,
     judge,
     pair_round,
     pairs_of,
@@ -138,9 +140,19 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             out = _round(remaining, {**ctx, "state": state}, ex, progress,
                          "fitting candidates" if not chosen else
                          f"fitting candidates with {' + '.join(e.name for e in state.chosen)}")
-            level = alpha / max(1, len(out))
+            idle = [c for c in out if inert(c)]
+            if idle:  # no hypothesis these data can test: out of the multiplicity and search
+                gone = {c.name for c in idle}
+                remaining = [cls for cls in remaining if cls.name not in gone]
+                notes.append(f"round {len(chosen) + 1}: {', '.join(sorted(gone))} cannot act "
+                             "on these data (their parameters do not move the prediction of "
+                             "the compared channels); left out of the search and of its "
+                             "tests' count")
+            level = alpha / max(1, len(out) - len(idle))
             for c in out:
                 judge(c, level, min_gain, min_noise_gain, z_off)
+            for c in idle:
+                c.significant, c.why_not = False, INERT_WHY
             beats = held_out_p(base, by_name, test, held_out_test == "noise")
             out = rank(out, implies, min_gain, beats, level)
             # an effect implying another is named only if it beats it (rank put it after)

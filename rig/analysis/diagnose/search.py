@@ -189,6 +189,28 @@ def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
     c.why_not = next((why for ok, why in checks if not ok), "")
 
 
+INERT = 1e-12  # |share of the training or held-out error| a candidate that cannot act moves
+
+
+def inert(c: Candidate) -> bool:
+    """Whether a fitted candidate cannot act on these data: none of its parameters moves
+    the prediction of the compared channels (every Jacobian column nil, so no uncertainty is
+    determined) and it changes neither the training nor the held-out error. The drive's lag
+    and the load cell's filter transform the input force, which a run driven by the key's
+    measured motion does not use (measured, issue 39: the Kawai KG-3C recording by
+    ``--input motion``, both at 0.0 % with their uncertainties not determined). Such a
+    candidate is no hypothesis the data can test: it is left out of the round's
+    multiplicity, of the pairs and of later rounds."""
+    if c.error or not c.values:
+        return False
+    return (all(not math.isfinite(s) for s in c.sigma.values())
+            and abs(c.train_gain) <= INERT and abs(c.removal) <= INERT)
+
+
+INERT_WHY = ("its parameters do not move the prediction of these data (not the input they "
+             "are driven by, nor the channels compared): it cannot act here")
+
+
 def _on_prior_bound(c: Candidate) -> bool:
     """Whether a base-parameter candidate's scale ended on a bound of its prior range
     (within 0.1 % of the range): a scale the data push past its prior is no base parameter
