@@ -379,6 +379,15 @@ def test_default_window_ends_at_the_keys_release() -> None:
     held = ms.Measurement(t, {"time": t, "force": np.interp(t, [0, 0.1, 2.0], [0, 30, 30]),
                               "hammer_angle": hammer}, {"force": "N", "hammer_angle": "rad"})
     assert ms.blow_window(held)[0] == pytest.approx(t[-1])  # never released: whole trial
+    # no force channel (a recording driven by the key's motion): the key's release found in
+    # its measured motion ends the blow; a release given by a simulation, or none, does not
+    moved = ms.Measurement(t, {"time": t, "key_dip": hammer, "hammer_angle": hammer},
+                           {"key_dip": "m", "hammer_angle": "rad"}, events={"key_release": 0.4},
+                           event_source={"key_release": "found in the measured channels"})
+    end, why = ms.blow_window(moved)
+    assert end == 0.4 and "release at 0.400 s, found in its measured motion" in why
+    moved.event_source = {}
+    assert ms.blow_window(moved) == (pytest.approx(t[-1]), "the trial's end (no force channel)")
 
 
 @pytest.mark.slow

@@ -270,11 +270,22 @@ def blow_window(meas: Measurement) -> tuple[float, str]:
     effects models it, and its residual swamps the held-out test (measured on two forte
     trials with a compliant string hidden: up to the release the string is found at
     held-out p = 4.5e-21; with the return included, 0.45 s, at p = 0.075, not
-    significant). Returns (end time in s, a phrase saying what bounded it); the trial's
-    end when the force never rises or never falls back."""
+    significant). A trial without a force channel (a recording driven by the key's motion,
+    issue 38) ends at its ``key_release`` event where one was found in its measured motion
+    (rig.analysis.events: the key leaving the depth it rested at): the same moment, seen
+    from the key (the Kawai KG-3C recording's fast strokes: 0.57-1.29 s, 0.13-0.21 s
+    before their trials' ends). Returns (end time in s, a phrase saying what bounded it);
+    the trial's end when the force never rises or never falls back, or when a trial
+    without one has no release found."""
     t = meas.time
     end = float(t[-1])
-    if "force" not in meas.channels or t.size < 16:
+    if "force" not in meas.channels:
+        rel = meas.events.get("key_release", math.nan)
+        if meas.found("key_release") and math.isfinite(rel) and 0.0 < rel < end:
+            return rel, (f"the key's release at {rel:.3f} s, found in its measured motion; "
+                         "the return is left out")
+        return end, "the trial's end (no force channel)"
+    if t.size < 16:
         return end, "the trial's end (no force channel)"
     f = smoothed_force(meas)
     rest = meas.rest_mask()
