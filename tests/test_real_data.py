@@ -293,33 +293,6 @@ def test_the_string_diagnose_fits_holds_the_hammer_longer_than_the_real_one_was_
         assert 0.0004 < soft[1] - real[1] < 0.0016, (k, real, soft)
 
 
-@pytest.mark.slow
-def test_the_diagnosis_of_the_fast_strokes_names_a_soft_string(tmp_path):
-    """docs/real-data.md: the first 0.1 s of the five single fast strokes, by the key's
-    motion: the drive's lag and the load cell's filter cannot act; the compliant string is
-    chosen, at a stiffness (1630 +- 240 N/m measured) far below a grand's hammer-string
-    contact, which the table above refutes."""
-    from typer.testing import CliRunner
-
-    from rig.cli import app
-
-    run = _import(tmp_path)
-    args = ["diagnose", str(run), "--input", "motion", "--duration", "0.1", "--json"]
-    for k in (3, 4, 5, 6, 15):
-        args += ["--trial", str(k)]
-    r = CliRunner().invoke(app, args)
-    assert r.exit_code == 0, r.output
-    import json
-
-    doc = json.loads(r.stdout)["diagnosis"]
-    assert doc["chosen"] == ["compliant_string"], doc["chosen"]
-    k = doc["final"]["values"]["compliant_string.stiffness"]
-    assert 1e3 <= k < 5e3, k
-    why = {c["name"]: c["why_not"] for c in doc["candidates"]}
-    assert "cannot act here" in why["drive_dynamics"] and "cannot act here" in \
-        why["load_cell_filter"], why
-
-
 def test_candidates_that_cannot_act_on_a_run_driven_by_motion_are_left_out(tmp_path):
     """Driven by the key's measured motion, the model never sees a force: the drive's lag
     and the load cell's filter, which transform the input force, cannot act. They are
