@@ -38,6 +38,16 @@ def _import(tmp_path: Path, min_rest_s: float | None = None) -> Path:
     return out
 
 
+def _excerpt(tmp_path: Path) -> Path:
+    """An excerpt of the recording imported through the shipped map: its first second of
+    rest, then the fourth single fast press (trial 1)."""
+    lines = KAWAI_TXT.read_text().splitlines()
+    (tmp_path / "k.txt").write_text("\n".join(lines[:2000] + lines[67000:68800]) + "\n")
+    run = tmp_path / "k.h5"
+    importer.import_files([tmp_path / "k.txt"], KAWAI / "map.yaml", run)
+    return run
+
+
 def real_strikes(meas: ms.Measurement) -> np.ndarray:
     """Times the real hammer reached the string: its shank sensor rising through 90 % of its
     top (the sensor saturates there, a few mm below the string), each counted once until it
@@ -301,10 +311,7 @@ def test_candidates_that_cannot_act_on_a_run_driven_by_motion_are_left_out(tmp_p
     act, not over all 4 (on the whole recording, 8 candidates and 27 pairs before)."""
     from rig.analysis import diagnose as dg
 
-    lines = KAWAI_TXT.read_text().splitlines()
-    (tmp_path / "k.txt").write_text("\n".join(lines[:2000] + lines[67000:68800]) + "\n")
-    run = tmp_path / "k.h5"
-    importer.import_files([tmp_path / "k.txt"], KAWAI / "map.yaml", run)
+    run = _excerpt(tmp_path)
     meas = ms.load(run, None, "motion")
     d = dg.diagnose(ActionModel(), meas[1:2], input="motion", duration=0.06, jobs=1,
                     candidates=["drive_dynamics", "load_cell_filter", "flexible_shank",
@@ -332,10 +339,7 @@ def test_fit_and_diagnose_by_motion_run_on_an_import_without_force(tmp_path):
 
     from rig.cli import app
 
-    lines = KAWAI_TXT.read_text().splitlines()
-    (tmp_path / "k.txt").write_text("\n".join(lines[:2000] + lines[67000:68800]) + "\n")
-    run = tmp_path / "k.h5"
-    importer.import_files([tmp_path / "k.txt"], KAWAI / "map.yaml", run)
+    run = _excerpt(tmp_path)
     assert "force" not in ms.load(run, None, "motion")[0].channels
     r = CliRunner().invoke(app, ["fit", str(run), "--input", "motion", "--duration", "0.08",
                                  "--param", "points.ground.Pg6.at.1=0.064:0.069"])
