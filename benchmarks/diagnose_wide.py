@@ -338,6 +338,9 @@ class Score:
     # trials for every model compared (``oracle_shown(calibrate=True)``)
     shown_calibrated: bool | None = None
     shown_calibrated_why: str = ""
+    # the diagnosis's timing verdict on its chosen set (rig.analysis.timing): "" when the
+    # events found in the trials say nothing against it; None: nothing chosen
+    timing: str | None = None
 
 
 def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
@@ -517,6 +520,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
         s = score(d, diag.chosen_names, final.values if final else {},
                   final.sigma if final else {})
         s.seconds = seconds
+        if final is not None:
+            s.timing = diag.timing_text()
         s.shown, s.shown_why = oracle_shown(d, meas)
         s.shown_calibrated, s.shown_calibrated_why = oracle_shown(d, meas, calibrate=True)
         if final is not None:
@@ -527,6 +532,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
             s.written_worse = s.written_removal < 0 and s.written_p < ALPHA_WORSE
     notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round "))
              or " dropped: " in n]
+    if diag.timing_text():
+        notes.append(diag.timing_text())
     rem = diag.remainder
     if rem is not None:
         notes.append(f"left {rem.ratio:.2g} x the floor (p = {rem.p:.2g})")
@@ -583,6 +590,16 @@ def summarize(scores: Sequence[Score]) -> dict[str, Any]:
                                       for s in scores))
                                  if any(s.shown_calibrated is not None for s in scores)
                                  else None),
+            # the timing verdict against the chosen set: on the exact sets, on the others
+            # (a stand-in should be flagged, a right set should not)
+            # (None where no seed has it: an older --json file)
+            "timing_flags": (((sum(bool(s.timing) for s in scores if s.exact
+                                   and s.timing is not None),
+                               sum(s.exact and s.timing is not None for s in scores)),
+                              (sum(bool(s.timing) for s in scores if not s.exact
+                                   and s.timing is not None),
+                               sum(not s.exact and s.timing is not None for s in scores)))
+                             if any(s.timing is not None for s in scores) else None),
             # where it misses: the exact share by the number of hidden library effects
             "exact_by_hidden": {str(k): (sum(s.exact for s in scores if len(s.hidden) == k),
                                          sum(len(s.hidden) == k for s in scores))
@@ -613,6 +630,11 @@ def table(summary: Mapping[str, Any]) -> list[str]:
         if cal is not None:
             lines.append(f"shown with the base calibrated jointly on the training trials "
                          f"(oracle): {cal[0]} of {hid} ({cal[1]} not shown uncalibrated)")
+    tf = summary.get("timing_flags")
+    if tf is not None:
+        (a, b), (c, d) = tf
+        lines.append(f"the timing verdict speaks against the chosen set: {a}/{b} exact sets, "
+                     f"{c}/{d} others")
     by = summary.get("exact_by_hidden", {})
     if by:
         lines.append("exact by hidden library effects: " + ", ".join(

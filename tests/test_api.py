@@ -259,3 +259,9 @@ def test_compare_and_diagnose_json_validate_and_say_what_the_text_says(tmp_path)
     assert abs(k - 3.0e4) < 4 * s and d["final"]["units"]["compliant_string.stiffness"] == "N/m"
     assert {c["name"] for c in d["candidates"]} == {"compliant_string", "felt_hysteresis"}
     assert d["verdict"].startswith("missing effect: compliant_string")
+    # the blow's events found in both trials, timed under the base model and the string
+    t = d["timing"]
+    assert t["labels"] == ["base model", "compliant_string"] and t["tolerance"] == 5e-4
+    assert {r["event"] for r in t["rows"]} >= {"strike", "key_bottom"}
+    assert all(r["low"] <= r["measured"] <= r["high"] and r["spread"]["compliant_string"] >= 0
+               for r in t["rows"])

@@ -261,6 +261,14 @@ def test_summary_counts_each_figure_over_the_seeds_it_applies_to() -> None:
     assert got["shown_calibrated"] == (1, 1)
     assert wide.table(got)[-2] == ("shown with the base calibrated jointly on the training "
                                    "trials (oracle): 1 of 2 (1 not shown uncalibrated)")
+    assert got["timing_flags"] is None  # no seed has the timing verdict (older files)
+    # the timing verdict on the chosen sets: silent on the exact one, speaking against one
+    # of the two wrong ones (nothing chosen: no verdict on a set)
+    scores[0].timing, scores[1].timing, scores[2].timing = "", "timing of x: ...", ""
+    got = wide.summarize(scores)
+    assert got["timing_flags"] == ((0, 1), (1, 2))
+    assert wide.table(got)[-2] == ("the timing verdict speaks against the chosen set: 0/1 "
+                                   "exact sets, 1/2 others")
 
 
 def test_written_model_check_tells_better_from_worse(tmp_path: Path) -> None:

@@ -44,6 +44,8 @@ class Measurement:
     # event -> where its time came from ("found in the measured channels ..."); events
     # without an entry are the simulation's own (simulated files)
     event_source: dict[str, str] = field(default_factory=dict)
+    # event -> the 95 % interval (s) it was found with, when the run file stores one
+    event_interval: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def found(self, event: str) -> bool:
         """Whether ``event`` was found in the measured channels (rig.analysis.events), not
@@ -137,7 +139,9 @@ def load(path: str | Path, trials: Sequence[int] | None = None,
                                dict(tr.units), ev, dict(tr.commands),
                                label=f"{Path(path).name}#{i}", metadata=dict(run.metadata),
                                event_source={k: v for k, v in tr.event_sources.items()
-                                             if k in ev}))
+                                             if k in ev},
+                               event_interval={k: v for k, v in tr.event_intervals.items()
+                                               if k in ev}))
     return out
 
 

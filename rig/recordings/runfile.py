@@ -315,6 +315,8 @@ class Trial:
 
     descriptions: dict[str, str] = field(default_factory=dict)
     event_sources: dict[str, str] = field(default_factory=dict)  # event -> its "source" attr
+    # event -> its 95 % interval (s), for events found in the channels with one (rig import)
+    event_intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def time(self) -> np.ndarray:
@@ -452,7 +454,10 @@ def read(path: str | Path) -> Run:
             evg = g.get("events", {})
             ev = current_event_names({k: float(v[()]) for k, v in evg.items()})
             src = {k: str(v.attrs["source"]) for k, v in evg.items() if "source" in v.attrs}
-            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs), docs, src))
+            ivs = {k: (float(v.attrs["interval_low"]), float(v.attrs["interval_high"]))
+                   for k, v in evg.items() if "interval_low" in v.attrs
+                   and "interval_high" in v.attrs}
+            trials.append(Trial(ch, units, cols, ev, cmd, dict(g.attrs), docs, src, ivs))
     return Run(p, attrs, meta, trials)
 
 

@@ -14,6 +14,7 @@ from rig.analysis import measurement as ms
 from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
+from rig.analysis import timing as tm
 from rig.analysis.diagnose.check import worse_trial, written_removal
 from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
 from rig.analysis.diagnose.notes import stability_notes
@@ -235,6 +236,18 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     else:
         left = rm.remainder(base, test, measurements, of="base model", alpha=alpha,
                             align_s=align_s, channels=channels)
+    # the blow's events (strike, check, key bottom) found in every trial, against the base
+    # model's and the final model's: a stand-in fits the samples but not the events
+    timed = [("base model", base)]
+    if chosen:
+        names = list(chosen[-1].effects or (chosen[-1].name,))
+        timed.append((" + ".join(names),
+                      _set_model(base, by_name, names, chosen[-1].values, rate)))
+    timing = tm.timing(timed, measurements, input,
+                       [min(w, m.duration) if w is not None else m.duration
+                        for w, m in zip([data.window(i) for i in range(n_meas)],
+                                        measurements, strict=True)],
+                       tolerance=max(align_s, tm.TOLERANCE_S))
     for c in first:
         c.test_resid = None
     for c in [*chosen, *withdrawn]:
@@ -248,7 +261,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single, remainder=left, max_effects=1 if single else max_effects,
                      held_out_trials=held, withdrawn=withdrawn, written_removal=written,
-                     worse_trial=worse)
+                     worse_trial=worse, timing=timing)
 
 
 def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,

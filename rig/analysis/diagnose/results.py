@@ -14,6 +14,7 @@ from rig.analysis import compare as cp
 from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
+from rig.analysis import timing as tm
 from rig.errors import InputError
 from rig.model import base_params as bp
 
@@ -210,6 +211,8 @@ class Diagnosis:
     # the run's trial the written set predicted significantly worse than the base (the set
     # is then withdrawn though its held-out error fell; check.worse_trial)
     worse_trial: WorseTrial | None = None
+    # the base model's and the final model's events against those found in the trials
+    timing: tm.Timing | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
@@ -229,6 +232,7 @@ class Diagnosis:
                 "worse_trial": (None if self.worse_trial is None
                                 else asdict(self.worse_trial)),
                 "held_out_trials": list(self.held_out_trials),
+                "timing": self.timing.as_dict() if self.timing is not None else None,
                 "base_comparison": self.comparison.as_dict()}
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
@@ -268,6 +272,21 @@ class Diagnosis:
         return 1 - e1 / e0 if e0 > 0 else 0.0
 
     def verdict(self) -> str:
+        """The diagnosis in one paragraph: what is chosen (or why nothing is claimed), what
+        it leaves, and what the blow's events say of it (``timing``)."""
+        text = self._claim()
+        said = self.timing_text()
+        return f"{text}. {said[0].upper()}{said[1:]}" if said else text
+
+    def timing_text(self) -> str:
+        """What the events found in the trials say of the final model (the base model when
+        nothing is claimed): ``Timing.verdict``."""
+        if self.timing is None or not self.timing.labels:
+            return ""
+        labels = self.timing.labels
+        return self.timing.verdict(labels[-1], labels[0])
+
+    def _claim(self) -> str:
         f = self.final
         rem = self.remainder
         if f is not None:
@@ -398,4 +417,6 @@ class Diagnosis:
                 lines.append("  no effect added")
         lines.append(self.verdict())
         lines += self.correlation_lines()
+        if self.timing is not None:
+            lines += self.timing.lines()
         return lines + self.notes
