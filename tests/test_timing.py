@@ -143,3 +143,20 @@ def test_the_benchmark_flags_the_base_model_and_not_the_truth(capsys):
                                                                          "key_bottom "))}
     assert set(table) == {"strike", "check", "key_bottom"}
     assert all(int(row[1]) == 3 and float(row[-1]) <= 1.0 for row in table.values()), table
+
+
+def test_the_diagnose_report_tabulates_each_models_events():
+    """rig diagnose --report: a row per event and trial, the found time and interval, each
+    model's time with its SD under the input's noise, and how far outside where it is."""
+    from rig.analysis import report
+
+    t = tm.Timing([_row("strike", "run.h5#0", 0.0470, 0.0501, spread=2e-4),
+                   _row("key_bottom", "run.h5#1", math.nan, 0.0500)], ["base", "x"],
+                  tolerance=1e-3)
+    html = report.timing_table(t)
+    assert html.count("<tr>") == 3  # the head and two rows
+    assert "<td>strike</td><td>run.h5#0</td><td>50.00</td><td>49.75 to 50.25</td>" in html
+    # 47.0 ms against 49.75 - 1.0 - 1.96 x 0.2 = 48.358 ms: 1.36 ms early
+    assert "<td>47.00 +- 0.20 (outside, -1.36)</td><td>50.10 +- 0.20</td>" in html
+    assert "<td>none</td><td>50.00 +- 0.00</td>" in html
+    assert "more than 1.0 ms plus 1.96 SD" in html

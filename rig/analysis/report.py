@@ -335,8 +335,40 @@ def _diagnosis_html(diag: Any) -> str:
     out.append("<h3>Largest residuals by channel and phase</h3>" + pl.table(
         srows, ["channel", "phase", "kind", "RMS / range", "x noise", "bias", "lag",
                 "oscillation", "timing (model - data)"]))
+    timing = getattr(diag, "timing", None)
+    if timing is not None and timing.rows:
+        out.append("<h3>The blow's events: each model against the events found in the trials "
+                   "[ms]</h3>" + timing_table(timing))
     out.extend(f"<p class='note'>{html.escape(n)}</p>" for n in diag.notes)
     return "\n".join(out)
+
+
+def timing_table(timing: Any) -> str:
+    """The rows of a ``rig.analysis.timing.Timing``: each event of each trial, the time found
+    with its 95 % interval, and each model's time with its SD under the input's noise,
+    marked where it lies outside (docs/workflow.md, "The blow's events")."""
+    from rig.analysis import timing as tm
+
+    rows = []
+    for r in timing.rows:
+        cells = [pl.event_label(r.event), r.trial, f"{r.measured * 1e3:.2f}",
+                 f"{r.low * 1e3:.2f} to {r.high * 1e3:.2f}"]
+        for label in timing.labels:
+            t = r.models.get(label, math.nan)
+            if not math.isfinite(t):
+                cells.append("none")
+                continue
+            sd = r.spread.get(label, math.nan)
+            spread = f" +- {sd * 1e3:.2f}" if math.isfinite(sd) else ""
+            off = r.beyond(label, timing.tolerance)
+            mark = f" (outside, {off * 1e3:+.2f})" if off != 0 else ""
+            cells.append(f"{t * 1e3:.2f}{spread}{mark}")
+        rows.append(cells)
+    note = (f"<p class='note'>A model's time is outside when it lies beyond the found "
+            f"interval by more than {timing.tolerance * 1e3:.1f} ms plus {tm.Z:.2f} SD of its time "
+            "under the input's noise (+- one SD shown; in brackets how far beyond).</p>")
+    return pl.table(rows, ["event", "trial", "found", "95 % interval",
+                           *timing.labels]) + note
 
 
 class _Page:
