@@ -35,7 +35,8 @@ def test_outside_is_beyond_the_interval_widened_by_the_tolerance_or_the_models_s
     # a model whose event the input's noise moves by 0.6 ms (SD) is held to 1.96 of them
     wide = _row("strike", "a", 0.0490, 0.0513, spread=6e-4)
     assert wide.beyond("base", 5e-4) == 0.0 and wide.beyond("x", 5e-4) == 0.0
-    assert math.isnan(_row("strike", "a", math.nan, 0.05).beyond("base", 5e-4))
+    # a model with no such event in the span it was simulated for is late beyond it
+    assert _row("strike", "a", math.nan, 0.05).beyond("base", 5e-4) == math.inf
 
 
 def test_an_event_outside_on_every_trial_on_one_side_is_unexplained():
@@ -64,6 +65,15 @@ def test_an_event_outside_on_every_trial_on_one_side_is_unexplained():
     early_late = tm.Timing([_row("strike", "a", 0.0470, 0.05),
                             _row("strike", "b", 0.0530, 0.05)], ["base", "x"])
     assert early_late.unexplained("base") == [] and early_late.verdict("x", "base") == ""
+    # a model that never strikes where the strike was found: unexplained, said so
+    never = tm.Timing([_row("strike", "a", 0.0500, math.nan),
+                       _row("strike", "b", 0.0501, math.nan)], ["base", "x"])
+    assert never.unexplained("x") == [("strike", 2, math.inf, math.inf)]
+    assert never.moved_out("x", "base") == [("strike", 2, 2)]
+    assert "the strike is outside its measured interval on both trials (the model has " \
+           "none)" in never.verdict("x", "base")
+    assert never.lines()[1] == ("  strike (2 trials): base +0.05 ms (median), outside on 0 "
+                                "of 2; x: none on 2")
 
 
 def test_a_heavier_hammer_strikes_later_than_the_base_model_on_every_blow(tmp_path):
@@ -158,5 +168,5 @@ def test_the_diagnose_report_tabulates_each_models_events():
     assert "<td>strike</td><td>run.h5#0</td><td>50.00</td><td>49.75 to 50.25</td>" in html
     # 47.0 ms against 49.75 - 1.0 - 1.96 x 0.2 = 48.358 ms: 1.36 ms early
     assert "<td>47.00 +- 0.20 (outside, -1.36)</td><td>50.10 +- 0.20</td>" in html
-    assert "<td>none</td><td>50.00 +- 0.00</td>" in html
+    assert "<td>none (outside)</td><td>50.00 +- 0.00</td>" in html
     assert "more than 1.0 ms plus 1.96 SD" in html

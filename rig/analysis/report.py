@@ -356,7 +356,7 @@ def timing_table(timing: Any) -> str:
         for label in timing.labels:
             t = r.models.get(label, math.nan)
             if not math.isfinite(t):
-                cells.append("none")
+                cells.append("none (outside)")
                 continue
             sd = r.spread.get(label, math.nan)
             spread = f" +- {sd * 1e3:.2f}" if math.isfinite(sd) else ""

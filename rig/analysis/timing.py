@@ -76,10 +76,12 @@ class Timed:
     def beyond(self, label: str, tolerance: float) -> float:
         """How far (s) the model's event lies outside the measured interval widened by
         ``tolerance`` plus ``Z`` of its spread under the input's noise: negative early,
-        positive late, 0 inside, nan without the event."""
+        positive late, 0 inside; inf when the model has no such event in the span it was
+        simulated for (``AFTER_S`` past the trial's last found event, or the window's end):
+        a hammer that never reaches the string is later than any found strike."""
         t = self.models.get(label, math.nan)
         if not math.isfinite(t):
-            return math.nan
+            return math.inf
         w = tolerance + Z * self.spread.get(label, 0.0)
         if not math.isfinite(w):
             return 0.0
@@ -111,17 +113,18 @@ class Timing:
         return [e for e in evt.EVENT_ORDER if any(r.event == e for r in self.rows)]
 
     def of(self, event: str, label: str) -> tuple[np.ndarray, np.ndarray]:
-        """The model's signed errors (model - measured, s) and distances beyond the
-        interval (s) on the trials where both it and the measurement have the event."""
-        rs = [r for r in self.rows if r.event == event
-              and math.isfinite(r.models.get(label, math.nan))]
-        err = np.array([r.models[label] - r.measured for r in rs])
+        """The model's signed errors (model - measured, s; inf where the model has no such
+        event) and distances beyond the interval (s; ``Timed.beyond``) on every trial
+        where the event was found."""
+        rs = [r for r in self.rows if r.event == event]
+        err = np.array([r.models.get(label, math.nan) - r.measured for r in rs])
         out = np.array([r.beyond(label, self.tolerance) for r in rs])
-        return err, out
+        return np.where(np.isfinite(err), err, math.inf), out
 
     def unexplained(self, label: str) -> list[tuple[str, int, float, float]]:
         """Events the model places outside their interval, on the same side, on every one
-        of at least ``MIN_TRIALS`` trials: (event, trials, least and most error, s)."""
+        of at least ``MIN_TRIALS`` trials (a missing event counts as late): (event, trials,
+        least and most error, s; inf where the model has none)."""
         out = []
         for e in self.events():
             err, beyond = self.of(e, label)
@@ -131,13 +134,13 @@ class Timing:
         return out
 
     def moved_out(self, label: str, base: str) -> list[tuple[str, int, int]]:
-        """Events the base model placed inside their interval on some trials and the model
-        outside on them: (event, such trials, trials with the event)."""
+        """Events the base model placed inside their interval on most of the trials it has
+        them on and the model outside (or nowhere) on them: (event, such trials, trials
+        the base model has the event on)."""
         out = []
         for e in self.events():
             rs = [r for r in self.rows if r.event == e]
-            both = [r for r in rs if math.isfinite(r.models.get(label, math.nan))
-                    and math.isfinite(r.models.get(base, math.nan))]
+            both = [r for r in rs if math.isfinite(r.models.get(base, math.nan))]
             moved = [r for r in both if r.beyond(base, self.tolerance) == 0
                      and r.beyond(label, self.tolerance) != 0]
             if moved and len(moved) * 2 > len(both):
@@ -157,11 +160,13 @@ class Timing:
             parts = []
             for label in self.labels:
                 err, beyond = self.of(e, label)
-                if err.size == 0:
-                    parts.append(f"{label}: no {_name(e)} in the window")
+                got = err[np.isfinite(err)]
+                none = f", none on {err.size - got.size}" if got.size < err.size else ""
+                if got.size == 0:
+                    parts.append(f"{label}: none on {err.size}")
                     continue
-                parts.append(f"{label} {np.median(err) * 1e3:+.2f} ms (median), outside on "
-                             f"{int(np.sum(beyond != 0))} of {err.size}")
+                parts.append(f"{label} {np.median(got) * 1e3:+.2f} ms (median), outside on "
+                             f"{int(np.sum(beyond != 0))} of {err.size}{none}")
             n = sum(1 for r in self.rows if r.event == e)
             out.append(f"  {_name(e)} ({n} trial{'s' if n != 1 else ''}): "
                        + "; ".join(parts))
@@ -204,7 +209,12 @@ def _name(event: str) -> str:
 
 
 def _span(lo: float, hi: float) -> str:
+    """The least and most error as text; a model with no such event is said so."""
+    if not math.isfinite(lo):
+        return "the model has none"
     a, b = lo * 1e3, hi * 1e3
+    if not math.isfinite(hi):
+        return f"{a:+.1f} ms or none"
     return f"{a:+.1f} ms" if abs(b - a) < 0.05 else f"{a:+.1f} to {b:+.1f} ms"
 
 
