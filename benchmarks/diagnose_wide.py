@@ -532,8 +532,9 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
             s.written_worse = s.written_removal < 0 and s.written_p < ALPHA_WORSE
     notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round "))
              or " dropped: " in n]
-    if diag.timing_text():
-        notes.append(diag.timing_text())
+    said = diag.timing_text()
+    if said:
+        notes.append(said)
     rem = diag.remainder
     if rem is not None:
         notes.append(f"left {rem.ratio:.2g} x the floor (p = {rem.p:.2g})")

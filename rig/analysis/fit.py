@@ -586,11 +586,12 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
 INPUT_NOISE_DRAWS = 32  # noise draws of the input-noise covariance (input_noise_cov)
 
 
-def input_noise_sigma(meas: Measurement) -> float:
-    """Noise level (N, 1 sigma) of a trial's measured key force: the larger of the robust
-    second-difference estimate (``noise_sigma``) and the spread over the rest samples
-    (``Measurement.rest_mask``; seen only when there are at least 10)."""
-    f = np.asarray(meas.channels["force"], float)
+def input_noise_sigma(meas: Measurement, channel: str = "force") -> float:
+    """Noise level (1 sigma, the channel's units) of a trial's input channel, by default
+    its measured key force (N): the larger of the robust second-difference estimate
+    (``noise_sigma``) and the spread over the rest samples (``Measurement.rest_mask``;
+    seen only when there are at least 10)."""
+    f = np.asarray(meas.channels[channel], float)
     sig = ms.noise_sigma(f)
     rest = meas.rest_mask()
     if rest.sum() >= 10:

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from rig.analysis import events as evt
+from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.model.action import ActionModel
 
@@ -230,17 +231,6 @@ def found_events(meas: ms.Measurement) -> dict[str, evt.Found]:
     return evt.found(meas.time, meas.channels)
 
 
-def input_sigma(meas: ms.Measurement, channel: str) -> float:
-    """Noise level (1 sigma, the channel's units) of a trial's input channel: the larger of
-    the robust second-difference estimate and the spread over the rest samples."""
-    x = np.asarray(meas.channels[channel], float)
-    sig = ms.noise_sigma(x)
-    rest = meas.rest_mask()
-    if rest.sum() >= 10:
-        sig = max(sig, float(np.std(x[rest], ddof=1)))
-    return sig if math.isfinite(sig) else 0.0
-
-
 def model_events(model: ActionModel, meas: ms.Measurement, input: str, duration: float,
                  names: Sequence[str], draws: int = DRAWS, seed: int = 0
                  ) -> dict[str, tuple[float, float]]:
@@ -252,7 +242,7 @@ def model_events(model: ActionModel, meas: ms.Measurement, input: str, duration:
     channel = INPUT_CHANNEL.get(input)
     if channel is None or channel not in meas.channels or draws < 2:
         return {k: (t, 0.0) for k, t in times.items()}
-    sigma = input_sigma(meas, channel)
+    sigma = ft.input_noise_sigma(meas, channel)
     rng = np.random.default_rng(seed)
     seen: dict[str, list[float]] = {k: [] for k in names}
     for _ in range(draws):

@@ -244,9 +244,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         timed.append((" + ".join(names),
                       _set_model(base, by_name, names, chosen[-1].values, rate)))
     timing = tm.timing(timed, measurements, input,
-                       [min(w, m.duration) if w is not None else m.duration
-                        for w, m in zip([data.window(i) for i in range(n_meas)],
-                                        measurements, strict=True)],
+                       [min(data.window(i) or m.duration, m.duration)
+                        for i, m in enumerate(measurements)],
                        tolerance=max(align_s, tm.TOLERANCE_S))
     for c in first:
         c.test_resid = None
