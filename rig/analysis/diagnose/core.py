@@ -39,6 +39,7 @@ from rig.analysis.diagnose.search import (
     pair_round,
     pairs_of,
     pick_pair,
+    rescued,
     screened_pairs,
 )
 from rig.analysis.measurement import Measurement
@@ -174,7 +175,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                 first = out
             if best is None and not single and len(chosen) + 2 <= max_effects:
                 best = _pair_step(remaining, {**ctx, "state": state}, ex, progress, by_name,
-                                  alpha, z_off, notes, len(chosen) + 1)
+                                  alpha, z_off, notes, len(chosen) + 1,
+                                  chosen[-1] if chosen else None)
             if best is None or single:
                 if best is not None:
                     chosen.append(best)
@@ -266,13 +268,16 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
 def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
                progress: Callable[[float, float, str], None] | None,
                by_name: dict[str, type[Effect]], alpha: float, z_off: float,
-               notes: list[str], step: int) -> Candidate | None:
-    """When no effect alone is significant but the set so far (``ctx["state"]``) leaves a
-    residual above its noise floor: every pair of the remaining candidates start-scanned
-    (``screened_pairs``), the best fitted together (``pair_round``), judged at ``alpha``
-    over the number fitted, and the best whose two effects are both needed
-    (``pick_pair``), or None. Two effects can each worsen the fit alone and remove nearly
-    all of it together (``search.evaluate_pair``)."""
+               notes: list[str], step: int, current: Candidate | None = None
+               ) -> Candidate | None:
+    """When no effect alone is significant but the set so far (``ctx["state"]``, the
+    round's set ``current``) leaves a residual above its noise floor: every pair of the
+    remaining candidates start-scanned (``screened_pairs``), the best fitted together
+    (``pair_round``), judged at ``alpha`` over the number fitted, and the best whose two
+    effects are both needed (``pick_pair``); else the best effect such a pair showed to be
+    enough alone, fitted from there (``rescued``; judged at ``alpha`` over the pairs
+    and these fits together), or None. Two effects can each worsen the fit alone and
+    remove nearly all of it together (``search.evaluate_pair``)."""
     base, train, test, state = ctx["base"], ctx["train"], ctx["test"], ctx["state"]
     pairs = pairs_of(remaining)
     if not pairs:
@@ -291,10 +296,24 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     level = alpha / len(out)  # chosen on the training data: the held-out tests are len(out)
     for c in out:
         judge(c, level, ctx["min_gain"], ctx["min_noise_gain"], z_off)
-    best = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
+    best, kept = pick_pair(out, base, by_name, train, test, state, level, ctx["max_nfev"])
     top = max((c for c in out if not c.error), key=lambda c: c.removal, default=None)
     fitted = (f"of {n_pairs} pairs, the {len(out)} whose start scans lowered the training "
               "error most fitted together")
+    if best is None and kept and top is not None:  # kept: from significant pairs
+        lvl = alpha / (len(out) + len(kept))
+        lone, tried = rescued(kept, ctx, by_name, current, lvl, z_off)
+        pair = (f"{why}{fitted}, none needing both its effects (best: {top.partner} + "
+                f"{top.name}, {top.gain_text()}; {top.why_not})")
+        if lone is not None:
+            notes.append(f"{pair}; {lone.name} alone, fitted from where the pair's refit "
+                         f"without its partner ended, removes {lone.removal * 100:.1f} % of "
+                         f"the held-out error (p = {lone.p_value:.2g} <= {lvl:.2g})")
+            return lone
+        notes.append(f"{pair}; " + "; ".join(
+            f"{c.name} alone from there: {c.gain_text()}"
+            + (f" ({c.why_not})" if c.why_not else "") for c in tried))
+        return None
     if best is not None:
         notes.append(f"{why}{fitted}: {best.partner} + {best.name} removes "
                      f"{best.removal * 100:.1f} % of the held-out error (p = "
