@@ -77,13 +77,18 @@ class Candidate:
     test_noise: dict[str, float] = field(default_factory=dict)  # held-out MS / noise^2
     test_resid: np.ndarray | None = field(default=None, repr=False)
     partner: str = ""                   # a pair's other newcomer (added with this one)
+    # share of the held-out error above its noise floor removed (search.floor_ms; nan:
+    # not measured, or the model so far at its floor: judged by ``removal`` then)
+    floor_removal: float = math.nan
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md)."""
         return {"name": self.name, "effects": list(self.effects or (self.name,)),
                 "values": dict(self.values), "sigma": dict(self.sigma),
                 "units": dict(self.units), "removal": self.removal,
-                "channel_removal": dict(self.channel_removal), "train_gain": self.train_gain,
+                "channel_removal": dict(self.channel_removal),
+                "floor_removal": (self.floor_removal if math.isfinite(self.floor_removal)
+                                  else None), "train_gain": self.train_gain,
                 "p_value": self.p_value, "significant": self.significant,
                 "partner": self.partner,
                 "why_not": self.why_not, "note": self.note, "error": self.error,

@@ -85,6 +85,24 @@ def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
     return max(zs) if zs else math.inf
 
 
+def floor_ms(test: ft.Data, noise_draws: np.ndarray | None) -> dict[str, float]:
+    """Per channel, the mean square (over the channel's range squared, as
+    ``Data.channel_ms``) that the held-out residual holds when the model is right: the
+    output noise plus, given ``noise_draws`` (``_noise_draws``), the input force's noise
+    through the model."""
+    v = test.noise_vector() ** 2
+    if noise_draws is not None and noise_draws.shape[1:] == v.shape:
+        v = v + np.mean(noise_draws ** 2, axis=0)
+    acc: dict[str, list[float]] = {}
+    start = 0
+    for n, c in zip(test.segments(), test.segment_channels(), strict=True):
+        a = acc.setdefault(c, [0.0, 0.0])
+        a[0] += float(np.sum(v[start:start + n]))
+        a[1] += n
+        start += n
+    return {c: a[0] / a[1] for c, a in acc.items() if a[1] > 0}
+
+
 def _fitted(kinds: Sequence[type[Effect]]) -> list[str]:
     """The fitted parameters of ``kinds``, keyed ``effect.param``."""
     return [f"{e.name}.{p.name}" for e in kinds for p in e.parameters if p.fitted]
@@ -156,6 +174,9 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     e_cur = float(np.mean([v[0] for v in cur.values()]))
     e_cand = float(np.mean([cand[c][0] for c in cur]))
     removal = 1 - e_cand / e_cur if e_cur > 0 else 0.0
+    floor = floor_ms(test, state.test_noise_draws)
+    above = e_cur - float(np.mean([floor.get(c, 0.0) for c in cur]))
+    floor_removal = (e_cur - e_cand) / above if above > 0 else math.nan
     ch_rem = {c: (1 - cand[c][0] / cur[c][0]) if cur[c][0] > 0 else 0.0 for c in cur}
     gain = max(cur[c][1] - cand[c][1] for c in cur)
     if state.test_noise_draws is not None:
@@ -168,7 +189,7 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
                      False, {c: cand[c][0] for c in cur}, nfev, p_value=p,
                      train_gain=train_gain, off_z=off_z, corr=corr, effects=names,
                      train_cost=train_cost, test_noise={c: cand[c][1] for c in cur},
-                     test_resid=resid)
+                     test_resid=resid, floor_removal=floor_removal)
 
 
 def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
@@ -178,8 +199,10 @@ def judge(c: Candidate, alpha: float, min_gain: float, min_noise_gain: float,
         return
     checks = [
         (c.train_gain > 0, "does not improve the training data"),
-        (c.removal >= min_gain, f"removes less than {min_gain * 100:.0f} % of the "
-                                "held-out error" if c.removal >= 0 else ""),
+        (c.floor_removal >= min_gain if math.isfinite(c.floor_removal)
+         else c.removal >= min_gain,
+         f"removes less than {min_gain * 100:.0f} % of the held-out error above its noise "
+         "floor" if c.removal >= 0 else ""),
         (c.noise_gain >= min_noise_gain, "the part it removes does not stand clear of the "
                                          "noise"),
         (c.p_value <= alpha, f"held-out improvement could be noise (p = {c.p_value:.2g} > "
