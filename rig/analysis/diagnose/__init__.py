@@ -42,9 +42,11 @@ slow tier (docs/workflow.md).
 
 A candidate counts as significant only when all hold:
 - it lowers the training error and removes at least ``min_gain`` of the held-out
-  error the current model leaves (mean over channels of the mean square residual
-  over the channel's range squared), and on some channel a held-out mean square
-  of at least ``min_noise_gain`` times the channel's noise variance;
+  error the current model leaves above its noise floor (mean over channels of the mean
+  square residual over the channel's range squared, less what the output noise and the
+  input force's noise through the model hold: ``search.channel_floor``), and on some
+  channel a held-out mean square of at least ``min_noise_gain`` times the channel's noise
+  variance;
 - the held-out improvement passes a one-sided test of the mean difference of
   squared residuals at level ``alpha`` divided by the number of candidates in the
   round that can act on the data (Bonferroni: the whole round's false-alarm rate is at

@@ -33,6 +33,7 @@ from rig.analysis.diagnose.search import (
     _unneeded,
     above_floor,
     candidates_for,
+    channel_floor,
     held_out_p,
     inert,
     judge,
@@ -105,7 +106,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     base_resid = test.residuals(base_preds)
     state = State([], base_resid, base_test,
                   float(np.mean(train.residuals(train.simulate(base)) ** 2)),
-                  _noise_draws(base, test, held_out_test))
+                  _noise_draws(base, test, held_out_test),
+                  channel_floor(base, test, base_resid))
     classes = candidates_for(base, candidates, extra, base_params)
     implies = {cls.name: cls.implies for cls in classes}
     by_name = {cls.name: cls for cls in classes}
@@ -121,11 +123,12 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
 
     def state_of(c: Candidate) -> State:
         now = [_instance(c, by_name[n]) for n in c.effects or (c.name,)]
-        return State(now, c.test_resid if c.test_resid is not None else state.test_resid,
-                     {k: (c.test_error[k], c.test_noise[k]) for k in base_test},
+        resid = c.test_resid if c.test_resid is not None else state.test_resid
+        model = ft.rebuild(base, now, rate=test.measurements[0].rate)
+        return State(now, resid, {k: (c.test_error[k], c.test_noise[k]) for k in base_test},
                      c.train_cost,
-                     _noise_draws(ft.rebuild(base, now, rate=test.measurements[0].rate),
-                                  test, held_out_test) if remaining else None)
+                     _noise_draws(model, test, held_out_test) if remaining else None,
+                     channel_floor(model, test, resid) if remaining else None)
 
     def better_note(new: Candidate, old: Candidate) -> str:
         moved = ", ".join(f"{k} {stats.short(old.values[k])} -> {stats.short(v)}"

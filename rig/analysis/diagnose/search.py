@@ -68,6 +68,8 @@ class State:
     # how the input force's noise moves test_resid (draws x samples), for noise_p;
     # None: the HAC test (improvement_test)
     test_noise_draws: np.ndarray | None = None
+    # the held-out noise floor per channel (channel_floor; None: not measured)
+    floor: dict[str, float] | None = None
 
 
 def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
@@ -85,14 +87,11 @@ def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
     return max(zs) if zs else math.inf
 
 
-def floor_ms(test: ft.Data, noise_draws: np.ndarray | None) -> dict[str, float]:
+def floor_ms(test: ft.Data, draws: np.ndarray) -> dict[str, float]:
     """Per channel, the mean square (over the channel's range squared, as
-    ``Data.channel_ms``) that the held-out residual holds when the model is right: the
-    output noise plus, given ``noise_draws`` (``_noise_draws``), the input force's noise
-    through the model."""
-    v = test.noise_vector() ** 2
-    if noise_draws is not None and noise_draws.shape[1:] == v.shape:
-        v = v + np.mean(noise_draws ** 2, axis=0)
+    ``Data.channel_ms``) of ``draws`` (rows: what the held-out residual holds when the
+    model is right, ``channel_floor``)."""
+    v = np.mean(np.asarray(draws, float) ** 2, axis=0)
     acc: dict[str, list[float]] = {}
     start = 0
     for n, c in zip(test.segments(), test.segment_channels(), strict=True):
@@ -101,6 +100,19 @@ def floor_ms(test: ft.Data, noise_draws: np.ndarray | None) -> dict[str, float]:
         a[1] += n
         start += n
     return {c: a[0] / a[1] for c, a in acc.items() if a[1] > 0}
+
+
+def channel_floor(model: ActionModel, test: ft.Data, resid: np.ndarray
+                  ) -> dict[str, float] | None:
+    """The held-out noise floor of ``model`` per channel (``floor_ms``): the output noise
+    and the input force's noise through the model (``remainder.floor_draws``, the floor
+    "What the chosen set leaves" tests against). None when a simulation fails."""
+    from rig.analysis.remainder import floor_draws
+
+    try:
+        return floor_ms(test, floor_draws(model, test, resid))
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return None
 
 
 def _fitted(kinds: Sequence[type[Effect]]) -> list[str]:
@@ -174,8 +186,8 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     e_cur = float(np.mean([v[0] for v in cur.values()]))
     e_cand = float(np.mean([cand[c][0] for c in cur]))
     removal = 1 - e_cand / e_cur if e_cur > 0 else 0.0
-    floor = floor_ms(test, state.test_noise_draws)
-    above = e_cur - float(np.mean([floor.get(c, 0.0) for c in cur]))
+    above = (e_cur - float(np.mean([state.floor.get(c, 0.0) for c in cur]))
+             if state.floor is not None else math.nan)
     floor_removal = (e_cur - e_cand) / above if above > 0 else math.nan
     ch_rem = {c: (1 - cand[c][0] / cur[c][0]) if cur[c][0] > 0 else 0.0 for c in cur}
     gain = max(cur[c][1] - cand[c][1] for c in cur)
