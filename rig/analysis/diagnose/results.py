@@ -77,7 +77,7 @@ class Candidate:
     test_noise: dict[str, float] = field(default_factory=dict)  # held-out MS / noise^2
     test_resid: np.ndarray | None = field(default=None, repr=False)
     partner: str = ""                   # a pair's other newcomer (added with this one)
-    # share of the held-out error above its noise floor removed (search.floor_ms; nan:
+    # share of the held-out error above its noise floor removed (search.channel_floor; nan:
     # not measured, or the model so far at its floor: judged by ``removal`` then)
     floor_removal: float = math.nan
 
