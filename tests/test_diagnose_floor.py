@@ -47,7 +47,7 @@ def test_the_floor_is_what_the_right_model_leaves(tmp_path: Path) -> None:
     test = data.subset(test_m)
     preds = test.simulate(model)
     got = test.channel_ms(preds)
-    floor = channel_floor(model, test, test.residuals(preds))
+    floor, _ = channel_floor(model, test, test.residuals(preds))
     assert floor is not None and set(floor) == set(got)
     # one realization of correlated noise: a channel's mean square spreads widely about its
     # floor (here 0.61-1.82), the channels' mean less

@@ -31,7 +31,6 @@ from rig.analysis.diagnose.search import (
     _pick,
     _round,
     _unneeded,
-    above_floor,
     candidates_for,
     channel_floor,
     held_out_p,
@@ -107,7 +106,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     state = State([], base_resid, base_test,
                   float(np.mean(train.residuals(train.simulate(base)) ** 2)),
                   _noise_draws(base, test, held_out_test),
-                  channel_floor(base, test, base_resid))
+                  *channel_floor(base, test, base_resid))
     classes = candidates_for(base, candidates, extra, base_params)
     implies = {cls.name: cls.implies for cls in classes}
     by_name = {cls.name: cls for cls in classes}
@@ -128,7 +127,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         return State(now, resid, {k: (c.test_error[k], c.test_noise[k]) for k in base_test},
                      c.train_cost,
                      _noise_draws(model, test, held_out_test) if remaining else None,
-                     channel_floor(model, test, resid) if remaining else None)
+                     *(channel_floor(model, test, resid) if remaining else (None, 1.0)))
 
     def better_note(new: Candidate, old: Candidate) -> str:
         moved = ", ".join(f"{k} {stats.short(old.values[k])} -> {stats.short(v)}"
@@ -285,8 +284,7 @@ def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,
     pairs = pairs_of(remaining)
     if not pairs:
         return None
-    model = ft.rebuild(base, list(state.chosen), rate=test.measurements[0].rate)
-    if not above_floor(model, test, state.test_resid, alpha):
+    if not state.floor_p <= alpha:  # the model so far leaves only noise (above_floor)
         return None
     n_pairs = len(pairs)
     why = (f"round {step}: no effect alone was significant and the residual stood above its "

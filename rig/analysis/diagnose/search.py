@@ -68,8 +68,10 @@ class State:
     # how the input force's noise moves test_resid (draws x samples), for noise_p;
     # None: the HAC test (improvement_test)
     test_noise_draws: np.ndarray | None = None
-    # the held-out noise floor per channel (channel_floor; None: not measured)
+    # the held-out noise floor per channel, and the p that test_resid stands above it
+    # (channel_floor; None and 1: not measured)
     floor: dict[str, float] | None = None
+    floor_p: float = 1.0
 
 
 def _off_z(classes: Sequence[type[Effect]], values: Mapping[str, float],
@@ -102,17 +104,27 @@ def floor_ms(test: ft.Data, draws: np.ndarray) -> dict[str, float]:
     return {c: a[0] / a[1] for c, a in acc.items() if a[1] > 0}
 
 
-def channel_floor(model: ActionModel, test: ft.Data, resid: np.ndarray
-                  ) -> dict[str, float] | None:
-    """The held-out noise floor of ``model`` per channel (``floor_ms``): the output noise
-    and the input force's noise through the model (``remainder.floor_draws``, the floor
-    "What the chosen set leaves" tests against). None when a simulation fails."""
+def _floor_draws(model: ActionModel, test: ft.Data, resid: np.ndarray
+                 ) -> tuple[np.ndarray, bool]:
+    """Draws of what ``model``'s held-out residual ``resid`` holds when the model is right
+    (``remainder.floor_draws``: the output noise and the input force's noise through the
+    model), and True; the output noise alone and False when a simulation fails."""
     from rig.analysis.remainder import floor_draws
 
     try:
-        return floor_ms(test, floor_draws(model, test, resid))
+        return floor_draws(model, test, resid), True
     except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-        return None
+        return stats.noise_floor_draws(test.noise_vector()), False
+
+
+def channel_floor(model: ActionModel, test: ft.Data, resid: np.ndarray
+                  ) -> tuple[dict[str, float] | None, float]:
+    """The held-out noise floor of ``model`` per channel (``floor_ms``; the floor "What
+    the chosen set leaves" tests against; None when a simulation fails), and the p that
+    ``resid`` stands above it (``stats.floor_test``; ``above_floor``), from one set of
+    draws."""
+    draws, ok = _floor_draws(model, test, resid)
+    return (floor_ms(test, draws) if ok else None), stats.floor_test(resid, draws)[1]
 
 
 def _fitted(kinds: Sequence[type[Effect]]) -> list[str]:
@@ -593,14 +605,8 @@ def rescued(kept: Sequence[tuple[str, dict[str, float]]], ctx: Mapping[str, Any]
 def above_floor(model: ActionModel, test: ft.Data, resid: np.ndarray, alpha: float) -> bool:
     """Whether ``model``'s held-out residual ``resid`` stands above its noise floor (the
     output noise and the input force's noise through the model; ``stats.floor_test`` at
-    ``alpha``)."""
-    from rig.analysis.remainder import floor_draws
-
-    try:
-        floor = floor_draws(model, test, resid)
-    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
-        floor = stats.noise_floor_draws(test.noise_vector())
-    return stats.floor_test(resid, floor)[1] <= alpha
+    ``alpha``). A diagnosis keeps this p for its model so far (``State.floor_p``)."""
+    return stats.floor_test(resid, _floor_draws(model, test, resid)[0])[1] <= alpha
 
 
 def _map(task: Callable[[Mapping[str, Any], int], Any], key: str, items: Sequence[Any],
