@@ -383,6 +383,24 @@ def test_a_drives_own_pair_is_walked_along_its_valley_whatever_its_correlation()
     assert dg._valley_pairs(shank, by_name) == []
 
 
+def _scored(base: ActionModel, by_name: dict, train: dg.ft.Data, test: dg.ft.Data,
+            vals: dict[str, float], names: tuple[str, ...]) -> dg.Candidate:
+    """The set ``names`` at ``vals`` as a chosen step, scored on ``test``."""
+    add = [by_name[n](**{k.split(".")[1]: v for k, v in vals.items()
+                         if k.startswith(n + ".")}) for n in names]
+    model = dg.ft.rebuild(base, add, vals, [dg.ft.target(base, k, add) for k in vals],
+                          test.measurements[0].rate)
+    preds = test.simulate(model)
+    ms_ = test.channel_ms(preds)
+    return dg.Candidate(names[-1], "", dict(vals), {k: 0.01 * abs(v) for k, v in
+                                                     vals.items()}, {}, 0.5, {}, 10.0,
+                        True, {k: v[0] for k, v in ms_.items()}, effects=names,
+                        train_cost=float(np.mean(train.residuals(train.simulate(model))
+                                                 ** 2)),
+                        test_noise={k: v[1] for k, v in ms_.items()},
+                        test_resid=test.residuals(preds))
+
+
 @pytest.mark.slow
 def test_a_newcomer_credited_with_the_sets_own_refit_is_not_named(tmp_path: Path) -> None:
     """A round refits the effects already chosen with each newcomer; when that refit alone
@@ -401,19 +419,7 @@ def test_a_newcomer_credited_with_the_sets_own_refit_is_not_named(tmp_path: Path
     by_name = {n: BUILTIN[n] for n in ("compliant_string", "backcheck_law")}
 
     def scored(vals: dict[str, float], names: tuple[str, ...]) -> dg.Candidate:
-        add = [by_name[n](**{k.split(".")[1]: v for k, v in vals.items()
-                             if k.startswith(n + ".")}) for n in names]
-        model = dg.ft.rebuild(base, add, vals, [dg.ft.target(base, k, add) for k in vals],
-                              meas[0].rate)
-        preds = test.simulate(model)
-        ms_ = test.channel_ms(preds)
-        return dg.Candidate(names[-1], "", dict(vals), {k: 0.01 * abs(v) for k, v in
-                                                         vals.items()}, {}, 0.5, {}, 10.0,
-                            True, {k: v[0] for k, v in ms_.items()}, effects=names,
-                            train_cost=float(np.mean(train.residuals(train.simulate(model))
-                                                     ** 2)),
-                            test_noise={k: v[1] for k, v in ms_.items()},
-                            test_resid=test.residuals(preds))
+        return _scored(base, by_name, train, test, vals, names)
 
     current = scored({"compliant_string.stiffness": 1.5e4}, ("compliant_string",))
     state = dg.State([BUILTIN["compliant_string"](stiffness=1.5e4)], current.test_resid,
@@ -435,10 +441,63 @@ def test_a_newcomer_credited_with_the_sets_own_refit_is_not_named(tmp_path: Path
     # the final set: an effect whose values went back to off is dropped, a needed one kept
     drop = dg._unneeded([current, idle], base, by_name, train, test, 0.05, True)
     assert drop is not None and drop[0] == "backcheck_law" and drop[1] > 0.05
+    assert not drop[3]  # found at the final values, before any refit
     assert [c.name for c in drop[2]] == ["compliant_string"]
     assert drop[2][0].effects == ("compliant_string",)
     assert drop[2][0].values == {"compliant_string.stiffness": 3e4}
     assert dg._unneeded([current, needed], base, by_name, train, test, 0.05, True) is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("net_delay_ms", [4.0, -2.0])
+def test_a_lag_the_drive_takes_back_when_refitted_is_dropped(net_delay_ms: float,
+                                                             tmp_path: Path) -> None:
+    """The final set's pruning refits the others without an effect (``_unneeded``): two
+    lags of the input trade, and at a drive + filter pair's values the drive alone is far
+    off, yet refitted alone it does as well when the truth is the drive alone (the pair
+    here is exactly the truth: the filter's advance added to the drive's dead time). A
+    filter the drive cannot replace (the truth's net dead time negative: the drive's delay
+    is >= 0) stays."""
+    cutoff = 100.0
+    advance = BUILTIN["load_cell_filter"].GROUP_DELAY_RAD / (2 * math.pi * cutoff)
+    delay = max(net_delay_ms * 1e-3, 0.0)
+    hidden = [{"drive_dynamics": {"delay": delay, "bandwidth": 70.0}}]
+    if net_delay_ms < 0:  # a filter's advance beyond the drive's dead time
+        cutoff = BUILTIN["load_cell_filter"].GROUP_DELAY_RAD / (
+            2 * math.pi * (delay - net_delay_ms * 1e-3))
+        advance = delay - net_delay_ms * 1e-3
+        hidden.append({"load_cell_filter": {"cutoff": cutoff}})
+    meas = make_run(tmp_path / "lag.h5", ActionModel(effects=hidden), False)
+    data = dg.ft.Data.build(meas, "force", DURATION, None)
+    train_m, test_m = dg.ft.split_masks(data)
+    train, test = data.subset(train_m), data.subset(test_m)
+    base = dg.ft.rebuild(ActionModel(), rate=meas[0].rate)
+    by_name = {n: BUILTIN[n] for n in ("drive_dynamics", "load_cell_filter")}
+    drive = {"drive_dynamics.delay": delay, "drive_dynamics.bandwidth": 70.0}
+    if net_delay_ms > 0:  # the same net lag, the drive's dead time lengthened by the advance
+        drive["drive_dynamics.delay"] = delay + advance
+    first = _scored(base, by_name, train, test, drive, ("drive_dynamics",))
+    pair = _scored(base, by_name, train, test, {**drive, "load_cell_filter.cutoff": cutoff},
+                   ("drive_dynamics", "load_cell_filter"))
+    held = dg._unneeded([first, pair], base, by_name, train, test, 0.05, True, refit_nfev=0)
+    assert held is None  # at the pair's values both look needed
+    drop = dg._unneeded([first, pair], base, by_name, train, test, 0.05, True)
+    if net_delay_ms < 0:
+        assert drop is None
+        return
+    assert drop is not None and drop[0] == "load_cell_filter" and drop[3], drop
+    reduced = drop[2][-1]
+    assert reduced.effects == ("drive_dynamics",)
+    # refitted back to the truth's lag: the dead time and the second-order lag's low-
+    # frequency group delay (2 zeta / omega_n) trade along a valley, their sum is fixed
+    # (to within the whole-trial alignment, +-0.5 ms)
+
+    def lag(v: dict[str, float]) -> float:
+        return v["drive_dynamics.delay"] + 2 * 0.7 / (2 * math.pi * v[
+            "drive_dynamics.bandwidth"])
+
+    assert abs(lag(reduced.values) - lag({"drive_dynamics.delay": delay,
+                                          "drive_dynamics.bandwidth": 70.0})) < 5e-4
 
 
 @pytest.mark.slow

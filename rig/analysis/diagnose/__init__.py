@@ -71,7 +71,9 @@ A candidate counts as significant only when all hold:
   it, at the values fitted with it, is significantly worse (``_without_newcomer``): a
   joint refit that only fits the chosen effects better is theirs, and the round is
   fitted again from those values. The final set, after its restarts, is asked the same
-  of each effect at ``alpha`` (``_unneeded``): the one least needed is dropped.
+  of each effect at ``alpha`` (``_unneeded``): the one least needed is dropped; when
+  each is needed at the final values, it is asked again with the others refitted
+  without it.
 
 Before scoring, each trial's prediction may shift as a whole by up to
 ``align_s`` (0.5 ms): the input's noise moves a blow by a few tenths of a ms

@@ -208,11 +208,13 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         notes += note
         drop = _unneeded(chosen, base, by_name, train0, test0, alpha, held_out_test == "noise")
         if drop is not None:
-            name, p, chosen[:] = drop
+            name, p, chosen[:], refitted = drop
             _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
             minima, note = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
-            notes += [f"{name} dropped: at the final fit the other effects do as well "
-                      f"without it on the held-out data (p = {p:.2g} > {alpha:.2g})", *note]
+            how = ("refitted without it" if refitted else
+                   "at their final values without it")
+            notes += [f"{name} dropped: the other effects, {how}, do as well on the "
+                      f"held-out data (p = {p:.2g} > {alpha:.2g})", *note]
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
                           held_out_test == "noise")
