@@ -458,14 +458,14 @@ def test_a_lag_the_drive_takes_back_when_refitted_is_dropped(net_delay_ms: float
     here is exactly the truth: the filter's advance added to the drive's dead time). A
     filter the drive cannot replace (the truth's net dead time negative: the drive's delay
     is >= 0) stays."""
-    cutoff = 100.0
-    advance = BUILTIN["load_cell_filter"].GROUP_DELAY_RAD / (2 * math.pi * cutoff)
+    per_hz = BUILTIN["load_cell_filter"].GROUP_DELAY_RAD / (2 * math.pi)  # advance x cutoff
     delay = max(net_delay_ms * 1e-3, 0.0)
+    # the filter's advance: a 100 Hz filter's beside a drive-only truth, else the part of
+    # the truth's (negative) net dead time the drive's delay cannot give
+    advance = per_hz / 100.0 if net_delay_ms > 0 else delay - net_delay_ms * 1e-3
+    cutoff = per_hz / advance
     hidden = [{"drive_dynamics": {"delay": delay, "bandwidth": 70.0}}]
-    if net_delay_ms < 0:  # a filter's advance beyond the drive's dead time
-        cutoff = BUILTIN["load_cell_filter"].GROUP_DELAY_RAD / (
-            2 * math.pi * (delay - net_delay_ms * 1e-3))
-        advance = delay - net_delay_ms * 1e-3
+    if net_delay_ms < 0:
         hidden.append({"load_cell_filter": {"cutoff": cutoff}})
     meas = make_run(tmp_path / "lag.h5", ActionModel(effects=hidden), False)
     data = dg.ft.Data.build(meas, "force", DURATION, None)

@@ -279,6 +279,7 @@ def _on_prior_bound(c: Candidate) -> bool:
 
 MAX_READOPT = 2  # rounds fitted again from a better fit of the set so far (per diagnose)
 
+
 def _refit_rest(keep: Sequence[str], vals: Mapping[str, float], base: ActionModel,
                 by_name: Mapping[str, type[Effect]], train: ft.Data, max_nfev: int
                 ) -> tuple[dict[str, float], ft.FitResult | None]:
