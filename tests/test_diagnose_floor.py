@@ -66,9 +66,14 @@ def test_the_floor_is_what_the_right_model_leaves(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_second_effect_near_the_floor_is_judged_on_what_stands_above_it(
-        tmp_path: Path) -> None:
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     d = wide.draw(SEED)
     assert set(d.hidden) == {"drive_dynamics", "compliant_string"} and d.user is None
+    # the split the seed was measured with: every other blow in the order recorded (since
+    # then the blows are ranked by force, fit.held_out_trials, and this seed's string
+    # removes 27 % of the whole held-out error, over min_gain, with no floor needed)
+    monkeypatch.setattr(ft, "held_out_trials", lambda data: [
+        i for i, g in enumerate(ft.blows(data.measurements)) if g % 2 == 1])
     path = tmp_path / "run.h5"
     wide.synth_run(d, d.blows, path, SEED)
     diag = dg.diagnose(ActionModel(), ms.load(path), duration=d.window, jobs=2,

@@ -13,6 +13,7 @@ fixed seed.
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +97,9 @@ def _blow_meas(peak: float, label: str) -> ms.Measurement:
 def test_held_out_trials_are_another_blow_when_the_run_has_several() -> None:
     """Two repeats each of a 30 N and a 1.2 N blow: the blows are told apart by their force
     (peak and impulse), and the held-out trials are the other blow's, not repeats of the
-    training blow; one blow repeated: alternate trials as before."""
+    training blow; the strongest blow is fitted on whatever its place in the run, and a
+    held-out blow lies between fitted ones where there are three; one blow repeated:
+    alternate trials as before."""
     meas = [_blow_meas(30, "f0"), _blow_meas(30, "f1"), _blow_meas(1.2, "p0"),
             _blow_meas(1.2, "p1")]
     assert ft.blows(meas) == [0, 0, 1, 1]
@@ -105,10 +108,22 @@ def test_held_out_trials_are_another_blow_when_the_run_has_several() -> None:
     train, test = ft.split_masks(data)
     assert [bool(m.all()) for m in train] == [True, True, False, False]
     assert [bool(m.all()) for m in test] == [False, False, True, True]
-    # interleaved blows: every other blow, whatever the order
+    # the gentle blow first: still the strong one fitted on
+    first_gentle = [meas[2], meas[3], meas[0], meas[1]]
+    assert ft.held_out_trials(ft.Data.build(first_gentle, "force", 0.3,
+                                            ["hammer_angle"])) == [0, 1]
+    # three blows, interleaved: ranked by force, every other one held out, so the 18 N
+    # blow between the 30 N and the 1.2 N ones is held out (fitted on both ends)
     meas2 = [meas[0], meas[2], meas[1], meas[3], _blow_meas(18, "m")]
     assert ft.blows(meas2) == [0, 1, 0, 1, 2]
-    assert ft.held_out_trials(ft.Data.build(meas2, "force", 0.3, ["hammer_angle"])) == [1, 3]
+    assert ft.held_out_trials(ft.Data.build(meas2, "force", 0.3, ["hammer_angle"])) == [4]
+    meas3 = [_blow_meas(1.2, "p"), _blow_meas(18, "m"), _blow_meas(30, "f")]
+    assert ft.held_out_trials(ft.Data.build(meas3, "force", 0.3, ["hammer_angle"])) == [1]
+    # whatever order the trials were recorded in, the same blows are held out
+    for order in itertools.permutations(range(5)):
+        shuffled = [meas2[i] for i in order]
+        held = ft.held_out_trials(ft.Data.build(shuffled, "force", 0.3, ["hammer_angle"]))
+        assert {shuffled[i].label for i in held} == {"m"}, order
     # one blow repeated: alternate trials
     same = [_blow_meas(30, f"f{i}") for i in range(4)]
     assert ft.held_out_trials(ft.Data.build(same, "force", 0.3, ["hammer_angle"])) == [1, 3]

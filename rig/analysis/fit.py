@@ -387,23 +387,32 @@ class Data:
 BLOW_TOLERANCE = 0.1  # trials whose force peak and impulse agree this closely: one blow
 
 
-def blows(measurements: Sequence[Measurement], tolerance: float = BLOW_TOLERANCE
-          ) -> list[int]:
-    """Which blow each trial is (0, 1, ... in order of first appearance): trials whose
-    measured force has the same peak and impulse (over the first 0.4 s, the blow) within
-    ``tolerance`` are repeats of one blow. Every trial its own blow when a trial has no
-    force channel."""
+def _blow_keys(measurements: Sequence[Measurement]) -> list[tuple[float, float]] | None:
+    """Each trial's measured force peak and impulse over the first 0.4 s (the blow); None
+    when a trial has no force channel."""
     keys: list[tuple[float, float]] = []
     for m in measurements:
         f = m.channels.get("force")
         if f is None:
-            return list(range(len(measurements)))
+            return None
         t = np.asarray(m.time, float)
         sel = (t >= 0) & (t <= 0.4)
         ff = np.asarray(f, float)[sel] if sel.sum() >= 2 else np.asarray(f, float)
         tt = t[sel] if sel.sum() >= 2 else t
         dt = float(np.median(np.diff(tt))) if tt.size >= 2 else 0.0
         keys.append((float(np.max(ff)), float(np.sum(np.clip(ff, 0, None))) * dt))
+    return keys
+
+
+def blows(measurements: Sequence[Measurement], tolerance: float = BLOW_TOLERANCE
+          ) -> list[int]:
+    """Which blow each trial is (0, 1, ... in order of first appearance): trials whose
+    measured force has the same peak and impulse (over the first 0.4 s, the blow) within
+    ``tolerance`` are repeats of one blow. Every trial its own blow when a trial has no
+    force channel."""
+    keys = _blow_keys(measurements)
+    if keys is None:
+        return list(range(len(measurements)))
     out: list[int] = []
     reps: list[tuple[float, float]] = []
     for k in keys:
@@ -419,21 +428,39 @@ def blows(measurements: Sequence[Measurement], tolerance: float = BLOW_TOLERANCE
 
 
 def held_out_trials(data: Data) -> list[int]:
-    """The trials ``split_masks`` holds out (none with one trial: blocks of it are)."""
+    """The trials ``split_masks`` holds out (none with one trial: blocks of it are).
+
+    With several blows, the blows are ranked by their force (the strongest trial's peak,
+    then its impulse; by first appearance without a force channel) and those at odd ranks
+    are held out: the strongest blow is always fitted on and, with three or more, the
+    weakest too, so that a held-out blow lies within the fitted blows' range where the run
+    allows. A model fitted on gentle blows alone is extrapolated to a strong one, where
+    the back check, the string and the shank act in ways a gentle blow never pins down
+    (measured, issue 39, wide benchmark development seed 603: a back check hidden, two
+    2.6 N piano blows and a 32 N held one; fitted on the piano blows its values predicted
+    the held blow worse than the base model, fitted on the held blow they predicted the
+    piano blows 51 % better, the truth's own 52 %)."""
     n = len(data.measurements)
     if n < 2:
         return []
     group = blows(data.measurements)
     if len(set(group)) >= 2:
-        return [i for i in range(n) if group[i] % 2 == 1]
+        keys = _blow_keys(data.measurements)
+        order = list(range(len(set(group))))
+        if keys is not None:
+            strength = {g: max(keys[i] for i in range(n) if group[i] == g) for g in order}
+            order.sort(key=lambda g: (-strength[g][0], -strength[g][1], g))
+        held = {g for rank, g in enumerate(order) if rank % 2 == 1}
+        return [i for i in range(n) if group[i] in held]
     return [i for i in range(n) if i % 2 == 1]
 
 
 def split_masks(data: Data, block_s: float = 0.002) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Training and held-out samples: with several blows (``blows``), the trials of every
-    other blow are held out, so that the scores say how a model fitted on some blows
-    predicts another; with several trials of one blow, alternate trials; else alternate
-    blocks of ``block_s`` within the one trial."""
+    other blow by force (``held_out_trials``: the strongest fitted on) are held out, so
+    that the scores say how a model fitted on some blows predicts another; with several
+    trials of one blow, alternate trials; else alternate blocks of ``block_s`` within the
+    one trial."""
     n = len(data.measurements)
     if n >= 2:
         held = set(held_out_trials(data))
