@@ -411,8 +411,11 @@ def blows(measurements: Sequence[Measurement], tolerance: float = BLOW_TOLERANCE
     ``tolerance`` are repeats of one blow. Every trial its own blow when a trial has no
     force channel."""
     keys = _blow_keys(measurements)
-    if keys is None:
-        return list(range(len(measurements)))
+    return list(range(len(measurements))) if keys is None else _grouped(keys, tolerance)
+
+
+def _grouped(keys: Sequence[tuple[float, float]], tolerance: float) -> list[int]:
+    """``blows`` from the trials' force keys (``_blow_keys``)."""
     out: list[int] = []
     reps: list[tuple[float, float]] = []
     for k in keys:
@@ -443,16 +446,17 @@ def held_out_trials(data: Data) -> list[int]:
     n = len(data.measurements)
     if n < 2:
         return []
-    group = blows(data.measurements)
-    if len(set(group)) >= 2:
-        keys = _blow_keys(data.measurements)
-        order = list(range(len(set(group))))
-        if keys is not None:
-            strength = {g: max(keys[i] for i in range(n) if group[i] == g) for g in order}
-            order.sort(key=lambda g: (-strength[g][0], -strength[g][1], g))
-        held = {g for rank, g in enumerate(order) if rank % 2 == 1}
-        return [i for i in range(n) if group[i] in held]
-    return [i for i in range(n) if i % 2 == 1]
+    keys = _blow_keys(data.measurements)
+    if keys is None:  # every trial its own blow, in the order recorded
+        return [i for i in range(n) if i % 2 == 1]
+    group = _grouped(keys, BLOW_TOLERANCE)
+    if max(group) == 0:  # one blow repeated
+        return [i for i in range(n) if i % 2 == 1]
+    strength = {g: max(k for k, gi in zip(keys, group, strict=True) if gi == g)
+                for g in set(group)}
+    order = sorted(strength, key=lambda g: (-strength[g][0], -strength[g][1], g))
+    held = set(order[1::2])
+    return [i for i in range(n) if group[i] in held]
 
 
 def split_masks(data: Data, block_s: float = 0.002) -> tuple[list[np.ndarray], list[np.ndarray]]:
