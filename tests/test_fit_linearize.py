@@ -106,3 +106,20 @@ def test_a_target_that_moves_nothing_has_no_uncertainty_and_leaves_the_others_al
     combined, _ = ft.combine_uncertainty(labels, sig3, corr3, np.eye(3) * 1e-6)
     assert math.isnan(combined["backcheck_law.damping"])
     assert all(math.isfinite(combined[k]) and combined[k] > sig3[k] for k in labels[:2])
+
+
+def test_the_start_scan_takes_a_parameters_own_point_count(string_blows: list) -> None:
+    # EffectParameter.scan: the shank's E asks for SHANK_E_SCAN points, log-spaced across
+    # its bounds; its damping ratio takes the fit's own 4 (scan only: max_nfev 0)
+    from rig.model.effects import SHANK_E_SCAN
+
+    data = ft.Data.build(string_blows[:1], "force", 0.05, None)
+    base = ft.rebuild(ActionModel(), rate=string_blows[0].rate)
+    shank = BUILTIN["flexible_shank"]
+    specs = ["flexible_shank.E", "flexible_shank.damping_ratio"]
+    e, z = (ft.target(base, s, [shank()]) for s in specs)
+    assert (e.scan, z.scan) == (SHANK_E_SCAN, 0)
+    res = ft.fit(base, data, specs, [shank], jobs=1, max_nfev=0, scan=4)
+    assert len(res.history) == 1 + SHANK_E_SCAN + 4
+    res = ft.fit(base, data, specs, [shank], jobs=1, max_nfev=0, scan=0)
+    assert len(res.history) == 1  # no scan asked: none, whatever the parameter wants

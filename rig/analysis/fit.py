@@ -51,6 +51,7 @@ class Target:
     lo: float
     hi: float
     units: str = ""
+    scan: int = 0           # start-scan points it needs at least (EffectParameter.scan)
 
     @property
     def log(self) -> bool:
@@ -105,7 +106,7 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
         lo, hi = _parse_bounds(bounds, name) if bounds else p.bounds
         lo, hi = max(lo, p.bounds[0]), min(hi, p.bounds[1])
         v0 = min(max(float(eff.values[rest]), lo), hi)
-        return Target(name, head, rest, v0, lo, hi, p.units)
+        return Target(name, head, rest, v0, lo, hi, p.units, p.scan)
     try:
         v0 = model.params.get(name)
     except (KeyError, ValueError, TypeError):
@@ -585,7 +586,8 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             for j in range(len(targets)):
                 if scan_labels is not None and targets[j].label not in scan_labels:
                     continue
-                for q in (np.arange(scan) + 0.5) / scan:
+                n = max(scan, targets[j].scan)
+                for q in (np.arange(n) + 0.5) / n:
                     u = u0.copy()
                     u[j] = lo[j] + q * (hi[j] - lo[j])
                     c = float(np.mean(fun_logged(u) ** 2))
