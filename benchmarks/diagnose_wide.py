@@ -531,7 +531,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
                 ActionModel.from_yaml(out), ActionModel(), ms.load(held), d.window)
             s.written_worse = s.written_removal < 0 and s.written_p < ALPHA_WORSE
     notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round "))
-             or " dropped: " in n]
+             or " dropped: " in n or " carries to the held-out trials: " in n
+             or " not claimed: at its values " in n]
     said = diag.timing_text()
     if said:
         notes.append(said)

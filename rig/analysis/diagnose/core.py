@@ -15,7 +15,12 @@ from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis import timing as tm
-from rig.analysis.diagnose.check import worse_trial, written_removal
+from rig.analysis.diagnose.check import (
+    LAG_CARRY_SHARE,
+    lag_carries,
+    worse_trial,
+    written_removal,
+)
 from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
 from rig.analysis.diagnose.notes import stability_notes
 from rig.analysis.diagnose.restarts import _restarts, _valleys
@@ -31,6 +36,7 @@ from rig.analysis.diagnose.search import (
     _pick,
     _round,
     _unneeded,
+    _without,
     candidates_for,
     channel_floor,
     held_out_p,
@@ -50,6 +56,63 @@ from rig.model.effects import Effect
 
 if TYPE_CHECKING:
     from rig.analysis.executor import Executor
+
+
+def _own_values(name: str, values: dict[str, float], units: dict[str, str]) -> str:
+    """``name``'s values among ``values`` (keyed ``effect.param``), short, with units."""
+    return ", ".join(f"{k[len(name) + 1:]} {stats.short(x)}"
+                     f"{(' ' + units[k]) if units.get(k) else ''}"
+                     for k, x in values.items() if k.startswith(name + "."))
+
+
+def _lags_that_do_not_carry(chosen: list[Candidate], base: ActionModel,
+                            by_name: dict[str, type[Effect]], train: ft.Data,
+                            test: ft.Data, final_nfev: int, notes: list[str]
+                            ) -> list[Candidate] | None:
+    """The steps without the first lag of the input force in the final set
+    (``chosen[-1]``) whose training values do not carry to the held-out trials
+    (``check.lag_carries`` below ``LAG_CARRY_SHARE``; the others refitted from their final
+    values, scored; no steps when it was the only effect), None when every lag carries;
+    a note on each lag asked goes to ``notes``."""
+    final = chosen[-1]
+    names = list(final.effects or (final.name,))
+    for name in names:
+        if not _moves_input(by_name[name]):
+            continue
+        got = lag_carries(final, name, base, by_name, test)
+        if got is None:
+            continue
+        share, own = got
+        if share >= LAG_CARRY_SHARE:
+            notes.append(f"{name} carries to the held-out trials: at its final values it "
+                         f"removes {min(share, 1.0) * 100:.0f} % of what it removes there "
+                         f"at values of their own ({_own_values(name, own, final.units)})")
+            continue
+        note = (f"{name} not claimed: at its values fitted on the training trials "
+                f"({_own_values(name, final.values, final.units)}) it removes "
+                f"{max(share, 0.0) * 100:.0f} % of what it removes from the held-out trials "
+                f"at values of their own ({_own_values(name, own, final.units)}). A lag of "
+                "the input force is the same on every blow; one that is not stands in for "
+                "something else: a force opposing the key (friction at the key, outside "
+                "the library) delays a force ramp by friction / (dF/dt), which differs "
+                "from blow to blow")
+        notes.append(note)
+        if len(names) == 1:
+            return []
+        keep = [n for n in names if n != name]
+        template = (final if name != final.name else chosen[-2] if len(chosen) >= 2
+                    else replace(final, name=keep[-1], partner=""))
+        cur = replace(final, test_resid=test.residuals(test.simulate(_set_model(
+            base, by_name, names, final.values, test.measurements[0].rate))))
+        got2 = _without(cur, name, template, base, by_name, train, test, False, -1.0,
+                        final_nfev)
+        if got2 is None or got2[1] is None:
+            notes[-1] = notes[-1].replace(f"{name} not claimed:", f"{name} kept (the "
+                                          "set without it could not be refitted), though", 1)
+            return None
+        rest = [c for c in chosen if c.name != name]
+        return [*rest[:-1], got2[1]] if rest else [got2[1]]
+    return None
 
 
 def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
@@ -215,6 +278,20 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                    "at their final values without it")
             notes += [f"{name} dropped: the other effects, {how}, do as well on the "
                       f"held-out data (p = {p:.2g} > {alpha:.2g})", *note]
+        lagged = _lags_that_do_not_carry(chosen, base, by_name, train0, test0, final_nfev,
+                                         notes)
+        if lagged is not None:
+            chosen[:] = lagged
+            if chosen:
+                if train0 is not train and not any(
+                        _moves_input(by_name[n]) or bp.is_base(n)
+                        for n in chosen[-1].effects or (chosen[-1].name,)):
+                    train0, test0 = train, test  # the alignment back: no lag left
+                _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+                minima, more = _restarts(chosen[-1], base, by_name, train0, test0,
+                                         final_nfev)
+                notes += more
+    if chosen:
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
                           held_out_test == "noise")
