@@ -109,8 +109,9 @@ def lag_carries(final: Candidate, name: str, base: ActionModel,
     amount that depends on the blow (tau = friction / dF/dt), and does not carry
     (measured, issue 39, wide benchmark development seed 640: 0.2 N of friction at the
     key front, the drive's lag fitted on a held 28.7 N blow at a delay of 0.5 ms and
-    839 Hz gave 26 % of what it does on the held-out piano blow at 5.1 ms and 366 Hz;
-    the true lags of 7 development seeds gave 98-100 %)."""
+    839 Hz gave 26 % of what it does on the held-out piano blow at 5.1 ms and 366 Hz,
+    refitted there without the scan; the true lags of 7 development seeds gave 98-100 %
+    so, and all 7 carry with it)."""
     names = list(final.effects or (final.name,))
     rate = test.measurements[0].rate
     own = [k for k in final.values if k.startswith(name + ".")]
