@@ -118,8 +118,9 @@ def test_base_offsets_reach_the_truth_model() -> None:
 
 def test_reserved_seeds_get_a_banner() -> None:
     assert wide.reserved_banner(range(0, 1000)) == ""
-    assert "RESERVED seeds 1000-1199" in wide.reserved_banner(range(990, 1001))
-    assert wide.reserved_banner(range(1200, 1300)) == ""
+    assert "RESERVED seeds 1000-1399" in wide.reserved_banner(range(990, 1001))
+    assert wide.reserved_banner(range(1400, 1500)) == ""
+    assert "RESERVED" in wide.reserved_banner([1250])
     assert "RESERVED" in wide.reserved_banner([1150])
 
 
