@@ -46,7 +46,10 @@ from rig.analysis.diagnose.search import (
     pairs_of,
     pick_pair,
     rescued,
+    scored_final,
     screened_pairs,
+    step_template,
+    steps_without,
 )
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
@@ -88,30 +91,27 @@ def _lags_that_do_not_carry(chosen: list[Candidate], base: ActionModel,
                          f"removes {min(share, 1.0) * 100:.0f} % of what it removes there "
                          f"at values of their own ({_own_values(name, own, final.units)})")
             continue
-        note = (f"{name} not claimed: at its values fitted on the training trials "
-                f"({_own_values(name, final.values, final.units)}) it removes "
-                f"{max(share, 0.0) * 100:.0f} % of what it removes from the held-out trials "
-                f"at values of their own ({_own_values(name, own, final.units)}). A lag of "
-                "the input force is the same on every blow; one that is not stands in for "
-                "something else: a force opposing the key (friction at the key, outside "
-                "the library) delays a force ramp by friction / (dF/dt), which differs "
-                "from blow to blow")
-        notes.append(note)
+        why = (f"at its values fitted on the training trials "
+               f"({_own_values(name, final.values, final.units)}) it removes "
+               f"{max(share, 0.0) * 100:.0f} % of what it removes from the held-out trials "
+               f"at values of their own ({_own_values(name, own, final.units)}). A lag of "
+               "the input force is the same on every blow; one that is not stands in for "
+               "something else: a force opposing the key (friction at the key, outside "
+               "the library) delays a force ramp by friction / (dF/dt), which differs "
+               "from blow to blow")
         if len(names) == 1:
+            notes.append(f"{name} not claimed: {why}")
             return []
-        keep = [n for n in names if n != name]
-        template = (final if name != final.name else chosen[-2] if len(chosen) >= 2
-                    else replace(final, name=keep[-1], partner=""))
-        cur = replace(final, test_resid=test.residuals(test.simulate(_set_model(
-            base, by_name, names, final.values, test.measurements[0].rate))))
-        got2 = _without(cur, name, template, base, by_name, train, test, False, -1.0,
-                        final_nfev)
+        cur = scored_final(final, base, by_name, test)
+        got2 = None if cur is None else _without(
+            cur, name, step_template(chosen, name), base, by_name, train, test, False, -1.0,
+            final_nfev)
         if got2 is None or got2[1] is None:
-            notes[-1] = notes[-1].replace(f"{name} not claimed:", f"{name} kept (the "
-                                          "set without it could not be refitted), though", 1)
+            notes.append(f"{name} kept (the set without it could not be refitted), though "
+                         f"{why}")
             return None
-        rest = [c for c in chosen if c.name != name]
-        return [*rest[:-1], got2[1]] if rest else [got2[1]]
+        notes.append(f"{name} not claimed: {why}")
+        return steps_without(chosen, name, got2[1])
     return None
 
 

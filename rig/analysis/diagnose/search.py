@@ -440,24 +440,54 @@ def _unneeded(steps: Sequence[Candidate], base: ActionModel,
     names = final.effects or (final.name,)
     if len(names) < 2 or len(steps) < 2:
         return None
-    try:  # scored at its final values, on these data
-        cur = replace(final, test_resid=test.residuals(test.simulate(_set_model(
-            base, by_name, names, final.values, test.measurements[0].rate))))
-    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+    cur = scored_final(final, base, by_name, test)
+    if cur is None:
         return None
     for nfev in (0, refit_nfev) if refit_nfev > 0 else (0,):
         worst: tuple[str, float, Candidate] | None = None
         for n in names:
-            template = steps[-2] if n == final.name else final
-            got = _without(cur, n, template, base, by_name, train, test, noise, alpha, nfev)
+            got = _without(cur, n, step_template(steps, n), base, by_name, train, test,
+                           noise, alpha, nfev)
             if got is not None and got[1] is not None and (worst is None
                                                            or got[0] > worst[1]):
                 worst = (n, got[0], got[1])
         if worst is not None:
             n, p, reduced = worst
-            rest = [c for c in steps if c.name != n]
-            return n, p, [*rest[:-1], reduced], nfev > 0
+            return n, p, steps_without(steps, n, reduced), nfev > 0
     return None
+
+
+def scored_final(final: Candidate, base: ActionModel, by_name: Mapping[str, type[Effect]],
+                 test: ft.Data) -> Candidate | None:
+    """``final`` with its held-out residual at its final values on ``test``, the set
+    ``_without`` compares a reduced set with; None when a simulation fails."""
+    names = final.effects or (final.name,)
+    try:
+        return replace(final, test_resid=test.residuals(test.simulate(_set_model(
+            base, by_name, names, final.values, test.measurements[0].rate))))
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+        return None
+
+
+def step_template(steps: Sequence[Candidate], name: str) -> Candidate:
+    """The step whose fields the final set without ``name`` keeps (``_without``): the
+    final one, or the one before it when ``name`` was the final step's newcomer (the
+    final step itself, renamed to its other effect, when it was a pair's only step)."""
+    final = steps[-1]
+    if name != final.name:
+        return final
+    if len(steps) >= 2:
+        return steps[-2]
+    keep = [n for n in final.effects or (final.name,) if n != name]
+    return replace(final, name=keep[-1], partner="")
+
+
+def steps_without(steps: Sequence[Candidate], name: str, reduced: Candidate
+                  ) -> list[Candidate]:
+    """The chosen steps with ``name``'s step gone and ``reduced`` (the set without it,
+    scored) as the last one."""
+    rest = [c for c in steps if c.name != name]
+    return [*rest[:-1], reduced]
 
 
 def _evaluate(ctx: Mapping[str, Any], i: int) -> Candidate:
