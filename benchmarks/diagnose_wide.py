@@ -64,14 +64,16 @@ Scoring (the issue's acceptance list):
 Beside them, a diagnostic that is no acceptance figure: the oracle (``oracle_shown``) asks
 whether the run's trials, on both sides of diagnose's split (held out, and trained on),
 show the hidden library set at its TRUE values against the base model, by diagnose's own
-test and gain rule (each effect needed when there are several). Where they do not (a
-string a piano blow never reaches, base offsets that make the true effect alone worse than
-none), the exact-set figure counts a miss no method that credits only what the held-out
-data show can avoid; "exact where the run shows the hidden set on both sides" is the
-method's share where the data allow it. The same oracle with the library's base-parameter
-scales calibrated jointly on the training trials for every model it compares
-(``calibrate=True``) says how many more seeds a method that calibrates the whole base beside
-each candidate could show (and how many it would lose).
+test and gain rule (each effect needed when there are several: the set without it, the
+others refitted on the training trials, significantly worse). Where they do not (a string
+a piano blow never reaches, base offsets that make the true effect alone worse than none,
+a drive's delay that absorbs a load-cell filter's advance), the exact-set figure counts a
+miss no method that credits only what the held-out data show can avoid; "exact where the
+run shows the hidden set on both sides" is the method's share where the data allow it. The
+same oracle with the library's base-parameter scales calibrated jointly on the training
+trials for every model it compares (``calibrate=True``) says how many more seeds a method
+that calibrates the whole base beside each candidate could show (and how many it would
+lose).
 """
 
 from __future__ import annotations
@@ -407,6 +409,7 @@ def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float 
 
 
 CALIBRATION_NFEV = 15  # least-squares steps of the oracle's joint base calibration
+ORACLE_REFIT_NFEV = 20  # ... and of its refit of the true set without one effect
 
 
 def calibrate_base(model: Any, data: Any) -> tuple[Any, dict[str, float]]:
@@ -433,18 +436,25 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
     held-out samples and, alike, on the training ones (what a fit can learn the effect
     from): on each side the set must remove at least ``min_gain`` of the error at the first
     round's level (``alpha`` over the number of library candidates), and with two or more
-    effects each must be needed (the set without it significantly worse at ``alpha``).
-    (None, "") with nothing hidden. Where the oracle fails, the data cannot both teach the
-    truth and confirm it against the base model, whatever a method fits: no method that
-    credits only what the held-out data show chooses it there (a best case, not a bound: a
-    fit may also absorb the base offsets and do better, or worse).
+    effects each must be needed (the set without it, the others' parameters refitted on
+    the training side from their true values, ``ORACLE_REFIT_NFEV``, significantly worse
+    at ``alpha``: effects that trade exactly are not shown, e.g. the drive's dead time and
+    the load cell filter's advance, whose sum alone the data fix while the drive's delay
+    exceeds the filter's group delay: of the 16 development seeds in 600-999 and
+    1400-1599 with both hidden, 12 counted as shown at the true values without the
+    refit, 2 with it). (None, "") with nothing hidden. Where the oracle fails, the data
+    cannot both teach the truth and confirm it against the base model, whatever a method
+    fits: no method that credits only what the held-out data show chooses it there (a
+    best case, not a bound: a fit may also absorb the base offsets and do better, or
+    worse).
 
     With ``calibrate`` every model compared (the base, the true set, the set without one
     effect) first has the library's base-parameter scales (rig.model.base_params, the list
     ``rig diagnose --base`` offers one at a time) fitted jointly, within their prior ranges,
     on the run's training trials: whether the truth would show to a method that calibrates
     the whole base beside each candidate (the scales fitted on the training side only, as a
-    method could; the drawn offsets of parameters outside that list stay off)."""
+    method could; the drawn offsets of parameters outside that list stay off). The set
+    without one effect is then compared at its true values, not refitted."""
     from rig.analysis import fit as ft
     from rig.analysis import measurement as ms
     from rig.analysis.diagnose.search import candidates_for, noise_p
@@ -468,9 +478,35 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
             models[key] = calibrate_base(m, train_side)[0] if calibrate else m
         return models[key]
 
-    def test_of(side: Any, r_names: Sequence[str], names: Sequence[str]
-                ) -> tuple[float, float]:
-        m0 = model(r_names)
+    refits: dict[tuple[str, ...], Any] = {}
+
+    def refitted(names: Sequence[str]) -> Any:
+        """The set ``names`` with its effects' parameters refitted on the training side
+        from their true values (with ``calibrate``, as built: its base is calibrated)."""
+        key = tuple(names)
+        if calibrate or not key:
+            return model(key)
+        if key not in refits:
+            from rig.analysis.diagnose.common import _set_model
+            from rig.model.effects import BUILTIN
+
+            kinds = [BUILTIN[n] for n in key]
+            start = {f"{n}.{k}": v for n in key for k, v in d.hidden[n].items()}
+            specs = [f"{c.name}.{q.name}" for c in kinds for q in c.parameters if q.fitted]
+            add = [c(**d.hidden[c.name]) for c in kinds]
+            base = ft.rebuild(ActionModel(Parameters.default()), rate=rate)
+            try:
+                f = ft.fit(base, train_side, [ft.target(base, k, add) for k in specs], add,
+                           jobs=1, max_nfev=ORACLE_REFIT_NFEV)
+                refits[key] = _set_model(base, {c.name: c for c in kinds}, key,
+                                         {**start, **f.values}, rate)
+            except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError):
+                refits[key] = model(key)
+        return refits[key]
+
+    def test_of(side: Any, r_names: Sequence[str], names: Sequence[str],
+                refit: bool = False) -> tuple[float, float]:
+        m0 = refitted(r_names) if refit else model(r_names)
         p0, p1 = side.simulate(m0), side.simulate(model(names))
         e0, e1 = side.channel_ms(p0), side.channel_ms(p1)
         mean0 = float(np.mean([v[0] for v in e0.values()]))
@@ -491,10 +527,11 @@ def oracle_shown(d: Draw, meas: Sequence[Any], alpha: float = 0.05, min_gain: fl
                            f"{level:.2g})")
         if len(names) >= 2:
             for n in names:
-                _, p_n = test_of(side, [m for m in names if m != n], names)
+                _, p_n = test_of(side, [m for m in names if m != n], names, refit=True)
                 if p_n > alpha:
-                    return False, (f"the true set without {n} does as well on the {what} "
-                                   f"data (p = {p_n:.2g} > {alpha:.2g})")
+                    how = "" if calibrate else ", the others refitted,"
+                    return False, (f"the true set without {n}{how} does as well on the "
+                                   f"{what} data (p = {p_n:.2g} > {alpha:.2g})")
         said = said or f"the true set removes {removal * 100:.1f} % of the held-out error " \
             f"(p = {p:.2g})"
     return True, said + " and shows on the training trials too"
@@ -533,7 +570,7 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
             s.written_worse = s.written_removal < 0 and s.written_p < ALPHA_WORSE
     notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round "))
              or " dropped: " in n or " carries to the held-out trials: " in n
-             or " not claimed: at its values " in n]
+             or " not claimed: " in n]
     said = diag.timing_text()
     if said:
         notes.append(said)

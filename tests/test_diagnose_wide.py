@@ -323,6 +323,27 @@ def test_the_oracle_says_whether_the_held_out_trials_show_the_hidden_set(
     assert oracle([strong, strong], {}) == (None, "")
 
 
+def test_the_oracle_does_not_count_a_pair_that_trades_exactly_as_shown(
+        tmp_path: Path) -> None:
+    # the drive's dead time (8 ms) and a 100 Hz load-cell filter, whose advance (4.2 ms)
+    # the drive's delay absorbs: at the true values the drive without the filter is far
+    # off, refitted it does as well, so the pair is not shown (the drive alone is)
+    strong = wide.Blow("held", [(0.0, 0.0), (0.02, 0.0), (0.1, 20.0), (0.3, 20.0)])
+    lags = {"drive_dynamics": {"delay": 0.008, "bandwidth": 60.0},
+            "load_cell_filter": {"cutoff": 100.0}}
+
+    def oracle(hidden: dict, filter_hz: float | None) -> tuple[bool | None, str]:
+        d = wide.Draw(0, [strong, strong], [], 0.15, 1.0, hidden, filter_hz, {}, None)
+        path = tmp_path / f"run{len(list(tmp_path.iterdir()))}.h5"
+        wide.synth_run(d, d.blows, path, 5)
+        return wide.oracle_shown(d, ms.load(path))
+
+    shown, why = oracle(lags, 100.0)
+    assert shown is False and "without load_cell_filter, the others refitted" in why, why
+    shown, why = oracle({"drive_dynamics": lags["drive_dynamics"]}, None)
+    assert shown is True, why
+
+
 @pytest.mark.slow
 def test_a_back_check_shown_by_a_strong_blow_is_fitted_on_it(tmp_path: Path) -> None:
     # a back check off its thesis values (development seed 603's), two 2.6 N piano blows

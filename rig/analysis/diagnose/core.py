@@ -18,6 +18,7 @@ from rig.analysis import timing as tm
 from rig.analysis.diagnose.check import (
     LAG_CARRY_SHARE,
     lag_carries,
+    swapped_p,
     worse_trial,
     written_removal,
 )
@@ -113,6 +114,42 @@ def _lags_that_do_not_carry(chosen: list[Candidate], base: ActionModel,
         notes.append(f"{name} not claimed: {why}")
         return steps_without(chosen, name, got2[1])
     return None
+
+
+def _later_effects_that_do_not_swap(chosen: list[Candidate], first: set[str],
+                                    base: ActionModel, by_name: dict[str, type[Effect]],
+                                    train: ft.Data, test: ft.Data, final_nfev: int,
+                                    alpha: float, noise: bool, notes: list[str]
+                                    ) -> list[Candidate] | None:
+    """The steps without the effect a later round added (not one of ``first``, the first
+    round's) that the test with its sides swapped needs least (``check.swapped_p`` above
+    ``alpha``, the largest p; the others refitted from their final values on the training
+    trials, scored), None when every such effect is needed so; a note on the one dropped
+    (or kept because the set without it could not be refitted) goes to ``notes``."""
+    final = chosen[-1]
+    worst: tuple[str, float] | None = None
+    for name in final.effects or (final.name,):
+        if name in first:
+            continue
+        p = swapped_p(final, name, base, by_name, train, test, noise)
+        if p is not None and p > alpha and (worst is None or p > worst[1]):
+            worst = (name, p)
+    if worst is None:
+        return None
+    name, p = worst
+    why = (f"the set fitted on the held-out trials does as well without it on the "
+           f"training trials (p = {p:.2g} > {alpha:.2g}): what it removed from the "
+           "held-out trials was the misfit of the effects before it at their training "
+           "values, not an effect of its own")
+    cur = scored_final(final, base, by_name, test)
+    got = None if cur is None else _without(
+        cur, name, step_template(chosen, name), base, by_name, train, test, False, -1.0,
+        final_nfev)
+    if got is None or got[1] is None:
+        notes.append(f"{name} kept (the set without it could not be refitted), though {why}")
+        return None
+    notes.append(f"{name} not claimed: {why}")
+    return steps_without(chosen, name, got[1])
 
 
 def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
@@ -291,6 +328,23 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                 minima, more = _restarts(chosen[-1], base, by_name, train0, test0,
                                          final_nfev)
                 notes += more
+        first_round = set(chosen[0].effects or (chosen[0].name,)) if chosen else set()
+        for _ in range(max_effects):
+            if not chosen:
+                break
+            later = _later_effects_that_do_not_swap(chosen, first_round, base, by_name,
+                                                    train0, test0, final_nfev, alpha,
+                                                    held_out_test == "noise", notes)
+            if later is None:
+                break
+            chosen[:] = later
+            if train0 is not train and not any(
+                    _moves_input(by_name[n]) or bp.is_base(n)
+                    for n in chosen[-1].effects or (chosen[-1].name,)):
+                train0, test0 = train, test  # the alignment back: no lag left
+            _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+            minima, more = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
+            notes += more
     if chosen:
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
