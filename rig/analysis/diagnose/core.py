@@ -24,7 +24,7 @@ from rig.analysis.diagnose.check import (
 )
 from rig.analysis.diagnose.common import _instance, _moves_input, _set_model
 from rig.analysis.diagnose.notes import stability_notes
-from rig.analysis.diagnose.restarts import _restarts, _valleys
+from rig.analysis.diagnose.restarts import Minimum, _restarts, _valleys
 from rig.analysis.diagnose.results import Candidate, Diagnosis, rank
 from rig.analysis.diagnose.search import (
     INERT_WHY,
@@ -103,17 +103,42 @@ def _lags_that_do_not_carry(chosen: list[Candidate], base: ActionModel,
         if len(names) == 1:
             notes.append(f"{name} not claimed: {why}")
             return []
-        cur = scored_final(final, base, by_name, test)
-        got2 = None if cur is None else _without(
-            cur, name, step_template(chosen, name), base, by_name, train, test, False, -1.0,
-            final_nfev)
-        if got2 is None or got2[1] is None:
-            notes.append(f"{name} kept (the set without it could not be refitted), though "
-                         f"{why}")
-            return None
-        notes.append(f"{name} not claimed: {why}")
-        return steps_without(chosen, name, got2[1])
+        return _withdrawn(chosen, name, why, base, by_name, train, test, final_nfev, notes)
     return None
+
+
+def _withdrawn(chosen: list[Candidate], name: str, why: str, base: ActionModel,
+               by_name: dict[str, type[Effect]], train: ft.Data, test: ft.Data,
+               final_nfev: int, notes: list[str]) -> list[Candidate] | None:
+    """The steps without ``name`` (the final set's others refitted from their final values
+    on ``train``, scored), noted "not claimed: ``why``"; None, noted as kept, when the set
+    without it could not be refitted."""
+    cur = scored_final(chosen[-1], base, by_name, test)
+    got = None if cur is None else _without(
+        cur, name, step_template(chosen, name), base, by_name, train, test, False, -1.0,
+        final_nfev)
+    if got is None or got[1] is None:
+        notes.append(f"{name} kept (the set without it could not be refitted), though {why}")
+        return None
+    notes.append(f"{name} not claimed: {why}")
+    return steps_without(chosen, name, got[1])
+
+
+def _refit_reduced(chosen: list[Candidate], base: ActionModel,
+                   by_name: dict[str, type[Effect]], train: ft.Data, test: ft.Data,
+                   train0: ft.Data, test0: ft.Data, final_nfev: int, notes: list[str]
+                   ) -> tuple[ft.Data, ft.Data, list[Minimum]]:
+    """The final set after a step was withdrawn, refitted (``_converge``) and restarted
+    (``_restarts``, its notes to ``notes``) on ``train0``/``test0``, the unaligned sides,
+    or on ``train``/``test`` again when no lag or base scale is left: those sides and the
+    restarts' minima."""
+    if train0 is not train and not any(_moves_input(by_name[n]) or bp.is_base(n)
+                                       for n in chosen[-1].effects or (chosen[-1].name,)):
+        train0, test0 = train, test  # the alignment back: no lag left
+    _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
+    minima, more = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
+    notes += more
+    return train0, test0, minima
 
 
 def _later_effects_that_do_not_swap(chosen: list[Candidate], first: set[str],
@@ -141,15 +166,7 @@ def _later_effects_that_do_not_swap(chosen: list[Candidate], first: set[str],
            f"training trials (p = {p:.2g} > {alpha:.2g}): what it removed from the "
            "held-out trials was the misfit of the effects before it at their training "
            "values, not an effect of its own")
-    cur = scored_final(final, base, by_name, test)
-    got = None if cur is None else _without(
-        cur, name, step_template(chosen, name), base, by_name, train, test, False, -1.0,
-        final_nfev)
-    if got is None or got[1] is None:
-        notes.append(f"{name} kept (the set without it could not be refitted), though {why}")
-        return None
-    notes.append(f"{name} not claimed: {why}")
-    return steps_without(chosen, name, got[1])
+    return _withdrawn(chosen, name, why, base, by_name, train, test, final_nfev, notes)
 
 
 def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: str = "force",
@@ -320,14 +337,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         if lagged is not None:
             chosen[:] = lagged
             if chosen:
-                if train0 is not train and not any(
-                        _moves_input(by_name[n]) or bp.is_base(n)
-                        for n in chosen[-1].effects or (chosen[-1].name,)):
-                    train0, test0 = train, test  # the alignment back: no lag left
-                _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
-                minima, more = _restarts(chosen[-1], base, by_name, train0, test0,
-                                         final_nfev)
-                notes += more
+                train0, test0, minima = _refit_reduced(chosen, base, by_name, train, test,
+                                                       train0, test0, final_nfev, notes)
         first_round = set(chosen[0].effects or (chosen[0].name,)) if chosen else set()
         for _ in range(max_effects):
             if not chosen:
@@ -338,13 +349,8 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
             if later is None:
                 break
             chosen[:] = later
-            if train0 is not train and not any(
-                    _moves_input(by_name[n]) or bp.is_base(n)
-                    for n in chosen[-1].effects or (chosen[-1].name,)):
-                train0, test0 = train, test  # the alignment back: no lag left
-            _converge(chosen[-1], base, by_name, train0, test0, final_nfev, always=True)
-            minima, more = _restarts(chosen[-1], base, by_name, train0, test0, final_nfev)
-            notes += more
+            train0, test0, minima = _refit_reduced(chosen, base, by_name, train, test,
+                                                   train0, test0, final_nfev, notes)
     if chosen:
         _add_input_noise(chosen[-1], base, by_name, train0)
         notes += _valleys(chosen[-1], minima, base, by_name, train0, test0, alpha,
