@@ -344,12 +344,16 @@ class Score:
     # the diagnosis's timing verdict on its chosen set (rig.analysis.timing): "" when the
     # events found in the trials say nothing against it; None: nothing chosen
     timing: str | None = None
+    # exact, or exact once an effect the diagnosis says trades exactly with the set
+    # (Diagnosis.trades: the data cannot tell the set from the set with it) is added
+    exact_stated: bool | None = None
 
 
 def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
-          sigma: Mapping[str, float]) -> Score:
+          sigma: Mapping[str, float], traded: Sequence[str] = ()) -> Score:
     """Score one diagnosis (the chosen names in order, the final values and sigmas keyed
-    ``effect.parameter``) against the seed's truth."""
+    ``effect.parameter``; ``traded``: the effects it says trade exactly with its set)
+    against the seed's truth."""
     from rig.model.effects import BUILTIN
 
     lib = [n for n in chosen if n in BUILTIN]
@@ -358,6 +362,7 @@ def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
     want = closure(hidden)
     right_claims = all(base_claim_right(c, d.base) for c in claims)
     exact = closure(lib) == want and right_claims
+    stated = exact or (bool(traded) and closure([*lib, *traded]) == want and right_claims)
     top1 = None
     if hidden:
         first = chosen[0] if chosen else None
@@ -388,7 +393,7 @@ def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
         misses = [f"missed {', '.join(missed)}"] if missed else []
         misses += [f"extra {', '.join(extra)}"] if extra else []
     return Score(d.seed, list(chosen), hidden, d.user[0] if d.user else None, exact, top1,
-                 alarm, outside, covered, checked, misses=misses)
+                 alarm, outside, covered, checked, misses=misses, exact_stated=stated)
 
 
 def written_vs_base(written: Any, base: Any, meas: Sequence[Any], window: float | None
@@ -556,7 +561,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
         seconds = time.perf_counter() - t0
         final = diag.final
         s = score(d, diag.chosen_names, final.values if final else {},
-                  final.sigma if final else {})
+                  final.sigma if final else {},
+                  [t.other for t in diag.trades if not t.both_chosen])
         s.seconds = seconds
         if final is not None:
             s.timing = diag.timing_text()
@@ -612,6 +618,10 @@ def summarize(scores: Sequence[Score]) -> dict[str, Any]:
     times = [s.seconds for s in scores if math.isfinite(s.seconds)]
     return {"seeds": len(scores),
             "exact": (sum(s.exact for s in scores), len(scores)),
+            # exact once the effects the diagnosis says trade exactly with its set are
+            # added (None where no seed has it: an older --json file)
+            "exact_stated": ((sum(bool(s.exact_stated) for s in scores), len(scores))
+                             if any(s.exact_stated is not None for s in scores) else None),
             "top1": rate([s.top1 for s in scores]),
             "outside_credit": rate([s.outside_credit for s in scores]),
             "false_alarm": rate([s.alarm for s in scores]),
@@ -660,6 +670,10 @@ def table(summary: Mapping[str, Any]) -> list[str]:
             continue
         n, m = v
         lines.append(f"{k:<16}{f'{n}/{m}':>12}{(f'{n / m:.2f}' if m else '-'):>8}  {target}")
+    st = summary.get("exact_stated")
+    if st is not None:
+        lines.append(f"exact up to an exact trade the diagnosis states (Diagnosis.trades): "
+                     f"{st[0]}/{st[1]}")
     shown_ = summary.get("exact_where_shown")
     if shown_ is not None:
         n, m = shown_

@@ -178,6 +178,30 @@ def test_scorer_exact_set_and_top1() -> None:
     assert not wide.score(mis, ["key_liftoff"], {}, {}).exact
 
 
+def test_scorer_counts_an_exact_trade_the_diagnosis_states() -> None:
+    d = _draw({"drive_dynamics": {"delay": 0.008, "bandwidth": 60.0},
+               "load_cell_filter": {"cutoff": 120.0}})
+    s = wide.score(d, ["drive_dynamics"], {}, {}, ["load_cell_filter"])
+    assert not s.exact and s.exact_stated and s.misses == ["missed load_cell_filter"]
+    assert not wide.score(d, ["drive_dynamics"], {}, {}).exact_stated  # no trade stated
+    assert wide.score(d, ["drive_dynamics", "load_cell_filter"], {}, {}).exact_stated
+    # the drive alone hidden: right with or without the stated trade
+    lone = _draw({"drive_dynamics": {"delay": 0.008, "bandwidth": 60.0}})
+    s = wide.score(lone, ["drive_dynamics"], {}, {}, ["load_cell_filter"])
+    assert s.exact and s.exact_stated
+    # a stated trade does not excuse another miss
+    three = _draw({"drive_dynamics": {"delay": 0.008, "bandwidth": 60.0},
+                   "load_cell_filter": {"cutoff": 120.0},
+                   "compliant_string": {"stiffness": 3e4}})
+    assert not wide.score(three, ["drive_dynamics"], {}, {}, ["load_cell_filter"]).exact_stated
+    scores = [wide.score(d, ["drive_dynamics"], {}, {}, ["load_cell_filter"]),
+              wide.score(three, ["drive_dynamics"], {}, {}, ["load_cell_filter"])]
+    got = wide.summarize(scores)
+    assert got["exact"] == (0, 2) and got["exact_stated"] == (1, 2)
+    assert ("exact up to an exact trade the diagnosis states (Diagnosis.trades): 1/2"
+            in wide.table(got))
+
+
 def test_scorer_base_parameters_are_nuisance_unless_named_wrongly() -> None:
     d = _draw({}, base={"bodies.hammer_head.mass": 1.05, "springs.jack_torque": 0.98})
     s = wide.score(d, [], {}, {})

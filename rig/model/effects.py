@@ -105,6 +105,9 @@ class Effect:
     implies: ClassVar[tuple[str, ...]] = ()
     # False for input models (fingertip): diagnose does not propose them
     diagnosable: ClassVar[bool] = True
+    # the parameter (s) of transform_input that is a pure dead time, if it has one: any
+    # effect whose whole transform is a time shift (input_shift) trades with it exactly
+    dead_time: ClassVar[str | None] = None
 
     def __init__(self, **values: float) -> None:
         known = {p.name: p for p in self.parameters}
@@ -152,6 +155,11 @@ class Effect:
 
     def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
         return force
+
+    def input_shift(self) -> float | None:
+        """The time shift (s, later positive) that is the whole of ``transform_input`` at
+        the current values, or None if it is anything else."""
+        return None
 
     def generalized_force(self, t: float, q: np.ndarray, qd: np.ndarray,
                           *z: np.ndarray) -> np.ndarray | None:
@@ -328,6 +336,7 @@ class DriveDynamics(Effect):
         ("key_angle", "whippen_angle", "hammer_angle"), ("key descent",), "lag",
         None, "every body moves later than the model driven by the recorded force; strike, "
         "let-off and key-bottom times shift later by several ms, strike speed barely changes")
+    dead_time = "delay"
 
     def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
         from scipy import signal
@@ -362,8 +371,10 @@ class LoadCellFilter(Effect):
 
     def transform_input(self, time: np.ndarray, force: np.ndarray) -> np.ndarray:
         _uniform(time, force)
-        tau = self.GROUP_DELAY_RAD / (2 * np.pi * self.values["cutoff"])
-        return _shift(time, force, -tau)
+        return _shift(time, force, self.input_shift())
+
+    def input_shift(self) -> float:
+        return -self.GROUP_DELAY_RAD / (2 * np.pi * self.values["cutoff"])
 
 
 class KeyEncoderMisread(Effect):

@@ -52,6 +52,7 @@ from rig.analysis.diagnose.search import (
     step_template,
     steps_without,
 )
+from rig.analysis.diagnose.trades import shift_trades
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
 from rig.model import base_params as bp
@@ -366,6 +367,11 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                                 held_out_test == "noise")
         if written is not None and not written > 0 or worse is not None:
             withdrawn, chosen = chosen, []
+    trades = []
+    if chosen:  # exact trades of a dead time with a pure shift: the data cannot split them
+        trades = shift_trades(list(chosen[-1].effects or (chosen[-1].name,)),
+                              chosen[-1].values, by_name)
+        notes += [t.note() for t in trades]
     if first:
         notes += stability_notes(first, base_resid, test)
     if backward and len(chosen) >= 2:
@@ -403,7 +409,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                      min_gain, min_noise_gain, _time.perf_counter() - wall0, notes, chosen,
                      single, remainder=left, max_effects=1 if single else max_effects,
                      held_out_trials=held, withdrawn=withdrawn, written_removal=written,
-                     worse_trial=worse, timing=timing)
+                     worse_trial=worse, timing=timing, trades=trades)
 
 
 def _pair_step(remaining: Sequence[type[Effect]], ctx: dict, ex: Executor,

@@ -15,6 +15,7 @@ from rig.analysis import remainder as rm
 from rig.analysis import signature as sg
 from rig.analysis import stats
 from rig.analysis import timing as tm
+from rig.analysis.diagnose.trades import Trade
 from rig.errors import InputError
 from rig.model import base_params as bp
 
@@ -218,6 +219,9 @@ class Diagnosis:
     worse_trial: WorseTrial | None = None
     # the base model's and the final model's events against those found in the trials
     timing: tm.Timing | None = None
+    # the final set's dead times that trade exactly with a candidate's time shift
+    # (notes.shift_trades): the data cannot tell the set from the set with it
+    trades: list[Trade] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data (``rig diagnose --json``, docs/json.md): the chosen set with its joint
@@ -238,6 +242,7 @@ class Diagnosis:
                                 else asdict(self.worse_trial)),
                 "held_out_trials": list(self.held_out_trials),
                 "timing": self.timing.as_dict() if self.timing is not None else None,
+                "trades": [t.as_dict() for t in self.trades],
                 "base_comparison": self.comparison.as_dict()}
 
     def removal_on(self, candidate: Candidate, channels: Sequence[str]) -> float:
