@@ -509,12 +509,18 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         max_nfev: int = 40, diff_step: float = 0.02, scan: int = 0,
         scan_labels: Sequence[str] | None = None,
         progress: Callable[[float, float, str], None] | None = None,
-        input_noise_draws: int = 0) -> FitResult:
+        input_noise_draws: int = 0, starts: Sequence[Mapping[str, float]] = (),
+        multistart: int = 1) -> FitResult:
     """Fit the targets by least squares on ``data``'s masked samples (within bounds); with
     ``scan`` > 0 first scan ``scan`` points across the bounds of each target (or of those
     in ``scan_labels``) one at a time for a better start; ``max_nfev`` 0 stops there (the
     scan's best point, its cost, no uncertainties). With ``input_noise_draws`` > 1
     the uncertainties include the input force's noise (``input_noise_cov``).
+
+    ``starts``: more start points, each values keyed by label (a label left out keeps its
+    starting value), costed beside the scan's; ``multistart`` > 1 runs the least squares
+    from that many of the lowest-cost distinct points (scan, starts, the start itself) and
+    keeps the lowest cost (``nfev`` then counts every run).
 
     The Jacobian's columns run on ``executor`` (rig.analysis.executor: local processes or a Dask
     cluster; the problem travels once per worker) or, without one, on ``jobs`` local
@@ -582,6 +588,7 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
         lo, hi = (np.array(b) for b in zip(*(t.u_bounds for t in targets), strict=True))
         r0 = fun_logged(u0)
         best = float(np.mean(r0 ** 2))
+        tried = [(best, u0)]
         if scan > 0:  # coarse one-at-a-time scan across the bounds for a good start
             for j in range(len(targets)):
                 if scan_labels is not None and targets[j].label not in scan_labels:
@@ -591,14 +598,30 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
                     u = u0.copy()
                     u[j] = lo[j] + q * (hi[j] - lo[j])
                     c = float(np.mean(fun_logged(u) ** 2))
+                    tried.append((c, u))
                     if c < best:
                         best, u0 = c, u
+        for start in starts:
+            unknown = set(start) - set(labels)
+            if unknown:
+                raise InputError(f"starts: {sorted(unknown)} are not fitted ({labels})")
+            u = np.array([t.to_u(start[t.label]) if t.label in start else 0.0
+                          for t in targets])
+            c = float(np.mean(fun_logged(np.clip(u, lo, hi)) ** 2))
+            tried.append((c, np.clip(u, lo, hi)))
+            if c < best:
+                best, u0 = c, np.clip(u, lo, hi)
         if max_nfev <= 0:  # the scan's best start only
             return FitResult(targets, values_of(u0), {t.label: math.nan for t in targets},
                              float(np.mean(r0 ** 2)), best, calls[0], 0, "scan only",
                              history, None)
-        sol = least_squares(fun_logged, u0, jac=jac, bounds=(lo, hi), x_scale=1.0,
-                            max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
+        sol = None
+        for u_start in distinct_starts(tried, hi - lo, multistart):
+            run = least_squares(fun_logged, u_start, jac=jac, bounds=(lo, hi), x_scale=1.0,
+                                max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
+            if sol is None or run.cost < sol.cost:
+                sol = run
+        assert sol is not None
     finally:
         if own and ex is not None:
             ex.close()
@@ -614,6 +637,40 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
     return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
                      float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
                      str(sol.message), history, corr)
+
+
+DISTINCT_START = 0.1  # starts closer than this share of every target's range are one
+
+
+def distinct_starts(tried: Sequence[tuple[float, np.ndarray]], span: np.ndarray, n: int
+                    ) -> list[np.ndarray]:
+    """The ``n`` lowest-cost points of ``tried`` (cost, u) that differ from each other by
+    more than ``DISTINCT_START`` of ``span`` in some target (the lowest first)."""
+    out: list[np.ndarray] = []
+    for _, u in sorted(tried, key=lambda cu: cu[0]):
+        if all(np.any(np.abs(u - v) > DISTINCT_START * span) for v in out):
+            out.append(u)
+        if len(out) == n:
+            break
+    return out
+
+
+def sobol_starts(targets: Sequence[Target], n: int, seed: int = 0) -> list[dict[str, float]]:
+    """``n`` start points spread jointly over the targets' bounds (a scrambled Sobol
+    sequence in the fitted coordinates: log-spaced where the target is), keyed by label."""
+    from scipy.stats import qmc
+
+    if not targets or n < 1:
+        return []
+    pts = qmc.Sobol(len(targets), seed=seed).random(n)
+    out = []
+    for row in pts:
+        start = {}
+        for t, q in zip(targets, row, strict=True):
+            lo, hi = t.u_bounds
+            start[t.label] = t.from_u(lo + float(q) * (hi - lo))
+        out.append(start)
+    return out
 
 
 INPUT_NOISE_DRAWS = 32  # noise draws of the input-noise covariance (input_noise_cov)

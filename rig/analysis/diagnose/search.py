@@ -158,6 +158,10 @@ def model_p(model: ActionModel, test: ft.Data, r0: np.ndarray, r1: np.ndarray,
     return stats.improvement_test(r0, r1, test.segments())[1]
 
 
+CANDIDATE_SOBOL = 16  # joint start points over a candidate's own bounds (2+ parameters)
+CANDIDATE_STARTS = 2  # least-squares runs from its lowest-cost distinct starts
+
+
 def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, test: ft.Data,
                        state: State, max_nfev: int, min_gain: float, min_noise_gain: float,
                        scan: int = 4, scan_labels: Sequence[str] | None = None,
@@ -175,9 +179,15 @@ def evaluate_candidate(cls: type[Effect], base: ActionModel, train: ft.Data, tes
     units = {f"{e.name}.{p.name}": _unit(p.units) for e in kinds for p in e.parameters}
     names = (*(e.name for e in chosen), cls.name)
     try:
+        starts: list[dict[str, float]] = []
+        if start is None and len(new) >= 2:  # joint starts over the newcomer's bounds
+            inst = [e if isinstance(e, Effect) else e() for e in add]
+            starts = ft.sobol_starts([ft.target(base, n, inst) for n in new],
+                                     CANDIDATE_SOBOL)
         if specs:
             res = ft.fit(base, train, specs, add, jobs=1, max_nfev=max_nfev, scan=scan,
-                         scan_labels=new if scan_labels is None else scan_labels)
+                         scan_labels=new if scan_labels is None else scan_labels,
+                         starts=starts, multistart=CANDIDATE_STARTS if starts else 1)
             values, sigma = dict(res.values), dict(res.sigma)
             targets, nfev, train_cost = res.targets, res.nfev, res.cost
             corr = ({(a.label, b.label): float(res.corr[i, j])
