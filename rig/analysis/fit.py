@@ -615,10 +615,11 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             return FitResult(targets, values_of(u0), {t.label: math.nan for t in targets},
                              float(np.mean(r0 ** 2)), best, calls[0], 0, "scan only",
                              history, None)
-        sol = None
+        sol, nfev = None, 0
         for u_start in distinct_starts(tried, hi - lo, multistart):
             run = least_squares(fun_logged, u_start, jac=jac, bounds=(lo, hi), x_scale=1.0,
                                 max_nfev=max_nfev, xtol=1e-4, ftol=1e-6, gtol=1e-8)
+            nfev += int(run.nfev)
             if sol is None or run.cost < sol.cost:
                 sol = run
         assert sol is not None
@@ -635,7 +636,7 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             sigma, corr = linearized_uncertainty(targets, values, lin, data.segments())
             sigma, corr = combine_uncertainty(labels, sigma, corr, extra_cov)
     return FitResult(targets, values, sigma, float(np.mean(r0 ** 2)),
-                     float(np.mean(sol.fun ** 2)), int(sol.nfev), int(sol.status),
+                     float(np.mean(sol.fun ** 2)), nfev, int(sol.status),
                      str(sol.message), history, corr)
 
 
