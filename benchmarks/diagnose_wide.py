@@ -362,7 +362,7 @@ def score(d: Draw, chosen: Sequence[str], values: Mapping[str, float],
     want = closure(hidden)
     right_claims = all(base_claim_right(c, d.base) for c in claims)
     exact = closure(lib) == want and right_claims
-    stated = exact or (bool(traded) and closure([*lib, *traded]) == want and right_claims)
+    stated = exact or (closure([*lib, *traded]) == want and right_claims)
     top1 = None
     if hidden:
         first = chosen[0] if chosen else None

@@ -605,12 +605,12 @@ def fit(base: ActionModel, data: Data, specs: Sequence[str | Target],
             unknown = set(start) - set(labels)
             if unknown:
                 raise InputError(f"starts: {sorted(unknown)} are not fitted ({labels})")
-            u = np.array([t.to_u(start[t.label]) if t.label in start else 0.0
-                          for t in targets])
-            c = float(np.mean(fun_logged(np.clip(u, lo, hi)) ** 2))
-            tried.append((c, np.clip(u, lo, hi)))
+            u = np.clip([t.to_u(start[t.label]) if t.label in start else 0.0
+                         for t in targets], lo, hi)
+            c = float(np.mean(fun_logged(u) ** 2))
+            tried.append((c, u))
             if c < best:
-                best, u0 = c, np.clip(u, lo, hi)
+                best, u0 = c, u
         if max_nfev <= 0:  # the scan's best start only
             return FitResult(targets, values_of(u0), {t.label: math.nan for t in targets},
                              float(np.mean(r0 ** 2)), best, calls[0], 0, "scan only",

@@ -220,7 +220,7 @@ class Diagnosis:
     # the base model's and the final model's events against those found in the trials
     timing: tm.Timing | None = None
     # the final set's dead times that trade exactly with a candidate's time shift
-    # (notes.shift_trades): the data cannot tell the set from the set with it
+    # (trades.shift_trades): the data cannot tell the set from the set with it
     trades: list[Trade] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
