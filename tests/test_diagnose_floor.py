@@ -12,6 +12,7 @@ output noise and the input force's noise through the model."""
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ import pytest
 from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
+from rig.analysis import remainder as rm
 from rig.analysis import synth
 from rig.analysis.diagnose import search
 from rig.analysis.diagnose.search import channel_floor, floor_ms
@@ -90,3 +92,63 @@ def test_a_second_effect_near_the_floor_is_judged_on_what_stands_above_it(
     assert string.removal < diag.min_gain <= string.floor_removal, (
         string.removal, string.floor_removal)
     assert string.as_dict()["floor_removal"] == string.floor_removal
+
+
+def _rippled(meas: list[ms.Measurement], amp: float) -> list[ms.Measurement]:
+    """``meas`` with a 20 ms sine of ``amp`` rad (one period, 0.10-0.12 s, as the hammer
+    nears the string) added to the second trial's hammer angle: a local misfit no model of
+    the action makes."""
+    second = meas[1]
+    t = second.time
+    sel = (t > 0.10) & (t < 0.12)
+    hammer = second.channels["hammer_angle"].copy()
+    hammer[sel] += amp * np.sin(2 * np.pi * (t[sel] - 0.10) / 0.02)
+    return [meas[0], replace(second, channels={**second.channels, "hammer_angle": hammer})]
+
+
+def test_the_search_asks_the_floor_test_the_verdict_gives(tmp_path: Path) -> None:
+    """``channel_floor`` with the trials: the p the verdict's "What it leaves" gives
+    (remainder.remainder: the whole and each channel in each phase, Bonferroni), which a
+    local misfit in a quiet channel cannot hide from; the whole alone loses it in the
+    other channels' floor (the pair step asks this p: issue 39, wide seed 1248). On the
+    right model's own noise neither says more than noise."""
+    truth = ActionModel()
+    path = tmp_path / "run.h5"
+    synth.synth(truth, [profiles.load(ROOT / "profiles" / "forte.yaml")] * 2, path, seed=3,
+                duration=0.15)
+    meas = ms.load(path)
+    model = ft.rebuild(truth, rate=meas[0].rate)
+    got = {}
+    for amp in (0.0, 1.5e-3):
+        trials = _rippled(meas, amp)
+        data = ft.Data.build(trials, "force", 0.15, None, align_s=5e-4)
+        test = data.subset(ft.split_masks(data)[1])
+        resid = test.residuals(test.simulate(model))
+        _, whole = channel_floor(model, test, resid)
+        floor, places = channel_floor(model, test, resid, trials, align_s=5e-4)
+        left = rm.remainder(model, test, trials, of="truth", align_s=5e-4)
+        assert left is not None and floor is not None
+        got[amp] = whole, places, left.p
+    assert got[0.0][0] > 0.05 and got[0.0][1] > 0.05, got  # noise is noise to both
+    whole, places, verdict = got[1.5e-3]
+    assert whole > 0.05, got  # lost in the whole
+    assert places < 1e-4, got  # found where it is
+    assert verdict < 1e-4, got  # and the verdict says the same
+
+
+def test_a_residual_the_verdict_finds_above_the_floor_opens_the_pair_step(
+        tmp_path: Path) -> None:
+    """The same ripple in a diagnosis: no candidate explains it, the verdict finds it above
+    the floor, and so does the gate of the pair step, which then tries the pair (before,
+    the gate asked the whole alone, p = 0.45, and no pair was tried)."""
+    path = tmp_path / "run.h5"
+    synth.synth(ActionModel(), [profiles.load(ROOT / "profiles" / "forte.yaml")] * 2, path,
+                seed=3, duration=0.15)
+    trials = _rippled(ms.load(path), 1.5e-3)
+    diag = dg.diagnose(ActionModel(), trials, duration=0.15, jobs=1,
+                       candidates=["compliant_string", "drive_dynamics"])
+    report = "\n".join(diag.report_lines())
+    assert diag.chosen_names == [], report
+    assert diag.remainder is not None and diag.remainder.significant, report
+    assert any("no effect alone was significant and the residual stood above its noise "
+               "floor" in n for n in diag.notes), report

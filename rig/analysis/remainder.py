@@ -117,7 +117,8 @@ def floor_draws(model: ActionModel, test: ft.Data, r: np.ndarray) -> np.ndarray:
 def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurement], *,
               of: str, alpha: float = 0.05, align_s: float = 0.0,
               channels: Sequence[str] | None = None,
-              acts: Mapping[str, Signature] | None = None) -> Remainder | None:
+              acts: Mapping[str, Signature] | None = None,
+              draws: np.ndarray | None = None) -> Remainder | None:
     """Test ``model``'s residual on the held-out data ``test`` against its noise floor
     (``measurements``: the trials ``test`` was built from), over the whole and over each
     channel in each phase of each held-out trial (a missing effect is often local: an
@@ -125,12 +126,13 @@ def remainder(model: ActionModel, test: ft.Data, measurements: Sequence[Measurem
     check phase of one channel and is lost in the whole), Bonferroni over those tests; a
     phase counts only where its RMS is at least ``MIN_PLACE_RATIO`` floors. ``acts``: the
     chosen effects' signatures (a place they cover is marked with the effect's name).
-    None when the model's simulation fails on them."""
+    ``draws``: the floor's draws for this model and residual when the caller has them
+    (``floor_draws``). None when the model's simulation fails on them."""
     preds = test.simulate(model)
     r = test.residuals(preds)
     if r.size == 0 or np.any(r == ft.FAILED_PENALTY):
         return None
-    floor = floor_draws(model, test, r)
+    floor = floor_draws(model, test, r) if draws is None else np.asarray(draws, float)
     ratio, p_all = stats.floor_test(r, floor)
     segs, names = test.segments(), test.segment_channels()
     trial_of = test.segment_trials()

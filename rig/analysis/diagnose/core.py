@@ -221,10 +221,17 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     base_preds = test.simulate(base)
     base_test = test.channel_ms(base_preds)
     base_resid = test.residuals(base_preds)
+
+    def floor_of(model: ActionModel, resid: np.ndarray) -> tuple[dict[str, float] | None,
+                                                                  float]:
+        # the verdict's test of what a set leaves (whole and places), for the pair step
+        return channel_floor(model, test, resid, measurements, alpha=alpha,
+                             align_s=align_s, channels=channels)
+
     state = State([], base_resid, base_test,
                   float(np.mean(train.residuals(train.simulate(base)) ** 2)),
                   _noise_draws(base, test, held_out_test),
-                  *channel_floor(base, test, base_resid))
+                  *floor_of(base, base_resid))
     classes = candidates_for(base, candidates, extra, base_params)
     implies = {cls.name: cls.implies for cls in classes}
     by_name = {cls.name: cls for cls in classes}
@@ -245,7 +252,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
         return State(now, resid, {k: (c.test_error[k], c.test_noise[k]) for k in base_test},
                      c.train_cost,
                      _noise_draws(model, test, held_out_test) if remaining else None,
-                     *(channel_floor(model, test, resid) if remaining else (None, 1.0)))
+                     *(floor_of(model, resid) if remaining else (None, 1.0)))
 
     def better_note(new: Candidate, old: Candidate) -> str:
         moved = ", ".join(f"{k} {stats.short(old.values[k])} -> {stats.short(v)}"
