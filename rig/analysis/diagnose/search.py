@@ -138,12 +138,12 @@ def channel_floor(model: ActionModel, test: ft.Data, resid: np.ndarray,
 
     draws, ok = _floor_draws(model, test, resid)
     floor = floor_ms(test, draws) if ok else None
-    p = stats.floor_test(resid, draws)[1]
     if measurements is not None and ok:
         left = remainder(model, test, measurements, of="", alpha=alpha, align_s=align_s,
                          channels=channels, draws=draws)
-        p = left.p if left is not None else p
-    return floor, p
+        if left is not None:
+            return floor, left.p
+    return floor, stats.floor_test(resid, draws)[1]
 
 
 def _fitted(kinds: Sequence[type[Effect]]) -> list[str]:
