@@ -448,6 +448,38 @@ def test_the_oracles_alone_print_per_seed_and_count(capsys: pytest.CaptureFixtur
 
 
 @pytest.mark.slow
+def test_the_back_checks_friction_scan_finds_its_narrow_well(tmp_path: Path) -> None:
+    # development seed 1538's run: a back check (friction 0.248, stiffness scale 2.02) and
+    # the load cell's filter (45.9 Hz) hidden, two held blows. With the filter at its truth,
+    # the back check fitted from a 4-point scan of each parameter, the stiffness first,
+    # went to a scale of 9.8 and a friction of 0.95, 15 times the truth's training cost:
+    # the friction's well is a few hundredths wide. Its SCAN points, scanned first
+    # (fit.scan_order), land in it.
+    from rig.model.effects import BACKCHECK_FRICTION_SCAN
+
+    d = wide.draw(1538)
+    assert sorted(d.hidden) == ["backcheck_law", "load_cell_filter"] and d.user is None
+    wide.synth_run(d, d.blows, tmp_path / "run.h5", 1538)
+    data = ft.Data.build(ms.load(tmp_path / "run.h5"), "force", d.window, None, align_s=5e-4)
+    train = data.subset(ft.split_masks(data)[0])
+    model = ft.rebuild(ActionModel(), rate=data.measurements[0].rate)
+    law = BUILTIN["backcheck_law"]
+    filt = BUILTIN["load_cell_filter"](**d.hidden["load_cell_filter"])
+    targets = [ft.target(model, f"backcheck_law.{k}", [filt, law()])
+               for k in ("stiffness_scale", "friction", "damping")]
+    assert [t.scan for t in targets] == [0, BACKCHECK_FRICTION_SCAN, 0]
+    truth = d.hidden["backcheck_law"]
+    c_truth = float(np.mean(train.residuals(train.simulate(ft.rebuild(
+        model, [filt, law(**truth)], rate=train.measurements[0].rate))) ** 2))
+    res = ft.fit(model, train, targets, [filt, law], jobs=1, max_nfev=10, scan=4)
+    assert abs(res.values["backcheck_law.friction"] - truth["friction"]) < 0.03, res.values
+    assert res.cost < 2 * c_truth, (res.cost, c_truth)
+    coarse = ft.fit(model, train, [replace(t, scan=0) for t in targets], [filt, law], jobs=1,
+                    max_nfev=10, scan=4)
+    assert coarse.cost > 5 * c_truth, (coarse.values, coarse.cost, c_truth)
+
+
+@pytest.mark.slow
 def test_the_shank_start_scan_finds_the_ringing_modes_basin(tmp_path: Path) -> None:
     # development seed 619's run: a flexible shank hidden (E = 8.23e9 Pa), base parameters
     # a few per cent off, its repeated and held blows (those diagnose fits on). The strain's

@@ -123,3 +123,20 @@ def test_the_start_scan_takes_a_parameters_own_point_count(string_blows: list) -
     assert len(res.history) == 1 + SHANK_E_SCAN + 4
     res = ft.fit(base, data, specs, [shank], jobs=1, max_nfev=0, scan=0)
     assert len(res.history) == 1  # no scan asked: none, whatever the parameter wants
+
+
+def test_the_start_scan_takes_the_narrowest_basin_first(string_blows: list) -> None:
+    # fit.scan_order: the back check's friction (BACKCHECK_FRICTION_SCAN points) is scanned
+    # before its stiffness and damping (the fit's own 4 each), whatever the order given
+    from rig.model.effects import BACKCHECK_FRICTION_SCAN
+
+    data = ft.Data.build(string_blows[:1], "force", 0.05, None)
+    base = ft.rebuild(ActionModel(), rate=string_blows[0].rate)
+    law = BUILTIN["backcheck_law"]
+    specs = [f"backcheck_law.{k}" for k in ("stiffness_scale", "friction", "damping")]
+    targets = [ft.target(base, s, [law()]) for s in specs]
+    assert ft.scan_order(targets) == [1, 0, 2]
+    assert ft.scan_order(targets[::-1]) == [1, 0, 2]  # the rest keep their given order
+    assert ft.scan_order([targets[0], targets[2]]) == [0, 1]
+    res = ft.fit(base, data, specs, [law], jobs=1, max_nfev=0, scan=4)
+    assert len(res.history) == 1 + BACKCHECK_FRICTION_SCAN + 4 + 4
