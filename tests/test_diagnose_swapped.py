@@ -92,15 +92,23 @@ def test_an_effect_outside_the_set_is_not_asked(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_diagnose_does_not_claim_what_the_drives_training_misfit_left(
         tmp_path: Path) -> None:
-    """The whole diagnosis on the drive's run above: the pair round's back check +
-    compliant string (71 % of the held-out error left by the drive, p = 0.0002) is not
-    claimed; the drive alone is."""
+    """The whole diagnosis on the drive's run above: a back check the pair round fits to
+    what the drive's training values leave on the held-out blow is not claimed; the drive
+    alone is. Before the back check's friction was scanned densely (session 41), the pair
+    round chose back check + compliant string (71 % of the held-out error left by the
+    drive, p = 0.0002) and the swapped test withdrew it at the end; since then the round
+    fits the back check elsewhere (45.5 % of that error) and its own check refuses it: the
+    drive refitted beside it does as well without it (p = 0.064). Either refusal will do,
+    and one of them must be there."""
     from rig.analysis import diagnose as dg
 
     meas = _run(ActionModel(effects=[DRIVE(**TRUE_DRIVE)]), tmp_path / "drive.h5")
     d = dg.diagnose(ActionModel(), meas, duration=WINDOW, jobs=2)
     text = "\n".join(d.report_lines())
     assert d.chosen_names == ["drive_dynamics"], text
-    dropped = [n for n in d.notes if " not claimed: the set fitted on the held-out trials "
+    swapped = [n for n in d.notes if " not claimed: the set fitted on the held-out trials "
                "does as well without it on the training trials" in n]
-    assert dropped, text
+    in_round = [n for n in d.notes if "backcheck_law alone from there" in n
+                and "do as well without it on the held-out data" in n
+                and "the gain is theirs" in n]
+    assert swapped or in_round, text
