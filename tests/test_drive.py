@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
@@ -84,6 +85,34 @@ def test_a_link_that_fails_is_a_drive_error_and_the_monitor_reports_it(link) -> 
         time.sleep(0.01)
     mon.stop()
     assert mon.fault is not None and mon.fault.startswith("drive link:"), mon.fault
+
+
+def test_a_port_closed_under_a_read_is_a_link_failure(link, monkeypatch) -> None:
+    """Closed by another thread while a command reads its answer, pyserial's descriptor is
+    None and its next read fails with a TypeError: that is the link failing too (seen in
+    CI, under load: the monitor thread died with it and never reported a fault)."""
+    _, sim, drive = link
+    port = drive.serial
+
+    def closed_under_the_read(n: int = 1) -> bytes:
+        port.close()  # another thread's close lands while this read waits: it returns
+        return b""    # nothing, and the loop asks the closed port how much is waiting
+
+    monkeypatch.setattr(port, "read", closed_under_the_read)
+    with pytest.raises(DriveError, match="the port was closed"):
+        drive.command("DRIVEOK")
+
+
+def test_close_waits_for_the_command_in_progress(link) -> None:
+    _, sim, drive = link
+    drive.lock.acquire()  # a command in progress (the monitor's poll)
+    closer = threading.Thread(target=drive.close)
+    closer.start()
+    time.sleep(0.1)
+    assert drive.serial.is_open  # not closed under the command
+    drive.lock.release()
+    closer.join(2)
+    assert not closer.is_alive() and not drive.serial.is_open
 
 
 class _FlakyLink:

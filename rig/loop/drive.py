@@ -57,6 +57,11 @@ class Drive:
             except (serial.SerialException, OSError) as exc:  # the link itself failed
                 raise DriveError(f"drive on {self.port}: the link failed on {text!r} "
                                  f"({type(exc).__name__}: {exc})") from exc
+            except TypeError as exc:  # pyserial's fd went to None under a read: closed
+                if self.serial.is_open:
+                    raise
+                raise DriveError(f"drive on {self.port}: the link failed on {text!r} "
+                                 "(the port was closed)") from exc
         body = buf[: -len(prompt)].decode("ascii", "replace")
         if body.startswith(text):
             body = body[len(text):]
@@ -90,7 +95,11 @@ class Drive:
         self.enabled = False
 
     def close(self) -> None:
-        self.serial.close()
+        """Close the port, after any command in progress (another thread's, the monitor's
+        poll) has its answer or its timeout: closed under a read, pyserial's descriptor
+        goes to None and the read fails with a TypeError, not a link error."""
+        with self.lock:
+            self.serial.close()
 
 
 class DriveMonitor:
