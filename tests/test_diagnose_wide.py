@@ -20,6 +20,7 @@ from rig.analysis import diagnose as dg
 from rig.analysis import fit as ft
 from rig.analysis import measurement as ms
 from rig.analysis import synth
+from rig.analysis.diagnose import search
 from rig.inputs import profiles
 from rig.model.action import ActionModel
 from rig.model.effects import BUILTIN
@@ -454,7 +455,9 @@ def test_the_back_checks_friction_scan_finds_its_narrow_well(tmp_path: Path) -> 
     # the back check fitted from a 4-point scan of each parameter, the stiffness first,
     # went to a scale of 9.8 and a friction of 0.95, 15 times the truth's training cost:
     # the friction's well is a few hundredths wide. Its SCAN points, scanned first
-    # (fit.scan_order), land in it.
+    # (fit.scan_order), land in it: within 3 times the truth's cost after the 10
+    # evaluations (1.6 times with the damping scanned linearly, whose scan then kept the
+    # default 2.45 s/m; 2.1 times with it scanned over decades, from 2.85 s/m: truth 1.34).
     from rig.model.effects import BACKCHECK_FRICTION_SCAN
 
     d = wide.draw(1538)
@@ -473,10 +476,50 @@ def test_the_back_checks_friction_scan_finds_its_narrow_well(tmp_path: Path) -> 
         model, [filt, law(**truth)], rate=train.measurements[0].rate))) ** 2))
     res = ft.fit(model, train, targets, [filt, law], jobs=1, max_nfev=10, scan=4)
     assert abs(res.values["backcheck_law.friction"] - truth["friction"]) < 0.03, res.values
-    assert res.cost < 2 * c_truth, (res.cost, c_truth)
+    assert res.cost < 3 * c_truth, (res.cost, c_truth)
     coarse = ft.fit(model, train, [replace(t, scan=0) for t in targets], [filt, law], jobs=1,
                     max_nfev=10, scan=4)
     assert coarse.cost > 5 * c_truth, (coarse.values, coarse.cost, c_truth)
+
+
+@pytest.mark.slow
+def test_the_back_checks_damping_is_fitted_over_decades(tmp_path: Path) -> None:
+    # development seed 1591's run: a back check alone hidden (stiffness scale 2.06,
+    # friction 0.197, damping 1.12 s/m), no base offsets, a repeated blow trained on and a
+    # staccato held out. The round's fit (a 4-point scan, 16 joint starts, two least-squares
+    # runs of 10 evaluations) with the damping linear across 0-50 s/m went to 49 s/m, and
+    # the held-out error stayed 15 times the truth's; fitted in log(damping + shift) it
+    # stays in the truth's basin.
+    d = wide.draw(1591)
+    assert list(d.hidden) == ["backcheck_law"] and not d.base and d.user is None
+    wide.synth_run(d, d.blows, tmp_path / "run.h5", 1591)
+    data = ft.Data.build(ms.load(tmp_path / "run.h5"), "force", d.window, None, align_s=5e-4)
+    train_m, test_m = ft.split_masks(data)
+    train, test = data.subset(train_m), data.subset(test_m)
+    rate = data.measurements[0].rate
+    model = ft.rebuild(ActionModel(), rate=rate)
+    law = BUILTIN["backcheck_law"]
+    targets = [ft.target(model, f"backcheck_law.{k}", [law()])
+               for k in ("stiffness_scale", "friction", "damping")]
+    assert targets[2].log and targets[2].shift > 0
+
+    def held_out(values: dict[str, float]) -> float:
+        own = {k.split(".")[1]: v for k, v in values.items()}
+        return float(np.mean(test.residuals(test.simulate(ft.rebuild(
+            model, [law(**own)], rate=rate))) ** 2))
+
+    def round_fit(tt: list[ft.Target]) -> ft.FitResult:
+        return ft.fit(model, train, tt, [law], jobs=1, max_nfev=10, scan=4,
+                      starts=ft.sobol_starts(tt, search.CANDIDATE_SOBOL),
+                      multistart=search.CANDIDATE_STARTS)
+
+    truth = held_out({f"backcheck_law.{k}": v for k, v in d.hidden["backcheck_law"].items()})
+    res = round_fit(targets)
+    assert res.values["backcheck_law.damping"] < 10, res.values
+    assert held_out(res.values) < 3 * truth, (res.values, truth)
+    linear = round_fit([replace(t, shift=0.0) for t in targets])
+    assert linear.values["backcheck_law.damping"] > 30, linear.values
+    assert held_out(linear.values) > 8 * truth, (linear.values, truth)
 
 
 @pytest.mark.slow

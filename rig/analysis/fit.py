@@ -30,7 +30,7 @@ from rig.analysis import measurement as ms
 from rig.analysis.measurement import Measurement
 from rig.errors import InputError
 from rig.model.action import ActionModel
-from rig.model.effects import Effect
+from rig.model.effects import LOG_SHIFT, Effect
 from rig.model.integrators import Integrator
 
 if TYPE_CHECKING:
@@ -52,20 +52,28 @@ class Target:
     hi: float
     units: str = ""
     scan: int = 0           # start-scan points it needs at least (EffectParameter.scan)
+    shift: float = 0.0      # > 0: fitted in log(v + shift) though lo is 0 (EffectParameter.log)
 
     @property
     def log(self) -> bool:
-        return self.lo > 0 and self.hi / self.lo >= 20 and self.value >= 3 * self.lo
+        """Fitted in log(v + shift): a positive range over decades, or a scale quantity
+        whose bounds start at 0 (``shift`` > 0)."""
+        return self.shift > 0 or (self.lo > 0 and self.hi / self.lo >= 20
+                                  and self.value >= 3 * self.lo)
 
     def to_u(self, v: float) -> float:
-        return math.log(v / self.value) if self.log else (v - self.value) / self.scale
+        s = self.shift
+        return (math.log((v + s) / (self.value + s)) if self.log
+                else (v - self.value) / self.scale)
 
     def from_u(self, u: float) -> float:
-        v = self.value * math.exp(u) if self.log else self.value + u * self.scale
+        s = self.shift
+        v = ((self.value + s) * math.exp(u) - s if self.log
+             else self.value + u * self.scale)
         return min(max(v, self.lo), self.hi)
 
     def dv_du(self, v: float) -> float:
-        return v if self.log else self.scale
+        return v + self.shift if self.log else self.scale
 
     @property
     def scale(self) -> float:
@@ -106,7 +114,9 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
         lo, hi = _parse_bounds(bounds, name) if bounds else p.bounds
         lo, hi = max(lo, p.bounds[0]), min(hi, p.bounds[1])
         v0 = min(max(float(eff.values[rest]), lo), hi)
-        return Target(name, head, rest, v0, lo, hi, p.units, p.scan)
+        # a scale quantity from 0: log(v + shift), the shift a share of its default
+        shift = LOG_SHIFT * p.default if p.log and lo <= 0 < p.default else 0.0
+        return Target(name, head, rest, v0, lo, hi, p.units, p.scan, shift)
     try:
         v0 = model.params.get(name)
     except (KeyError, ValueError, TypeError):

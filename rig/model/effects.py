@@ -58,6 +58,15 @@ class EffectParameter:
     # start-scan points the fit needs over the bounds at least (0: the fit's own count): a
     # parameter that sets a ringing mode's frequency makes the time-domain cost ripple
     scan: int = 0
+    # a scale quantity whose bounds start at 0 (a damping): plausible values spread over
+    # decades at the bottom of its range, so the fit works in log(value + shift), shift
+    # LOG_SHIFT of the default, not linearly across the bounds (rig.analysis.fit.Target)
+    log: bool = False
+
+
+# the shift of a ``log`` parameter's fitted coordinate, a share of its default: values down
+# to about this share of the default are scanned and fitted as finely as those near it
+LOG_SHIFT = 0.01
 
 
 @dataclass(frozen=True)
@@ -435,7 +444,7 @@ class BackcheckLaw(Effect):
                         "kinetic friction coefficient A", "contacts.4.A", off=0.434,
                         scan=BACKCHECK_FRICTION_SCAN),
         EffectParameter("damping", "s/m", 2.446, (0.0, 50.0), True, "damping factor D",
-                        "contacts.4.D", off=2.446),
+                        "contacts.4.D", off=2.446, log=True),
     )
     signature = Signature(
         ("hammer_angle", "shank_strain"), ("check",), "bias", None,
