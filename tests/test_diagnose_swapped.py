@@ -98,8 +98,10 @@ def test_diagnose_does_not_claim_what_the_drives_training_misfit_left(
     round chose back check + compliant string (71 % of the held-out error left by the
     drive, p = 0.0002) and the swapped test withdrew it at the end; since then the round
     fits the back check elsewhere (45.5 % of that error) and its own check refuses it: the
-    drive refitted beside it does as well without it (p = 0.064). Either refusal will do,
-    and one of them must be there."""
+    drive refitted beside it does as well without it (p = 0.064). Since its damping is
+    fitted over decades (session 42), no candidate beside the drive is significant in the
+    second round, and there is nothing to refuse. Any of the three will do, and one of them
+    must be there."""
     from rig.analysis import diagnose as dg
 
     meas = _run(ActionModel(effects=[DRIVE(**TRUE_DRIVE)]), tmp_path / "drive.h5")
@@ -111,4 +113,5 @@ def test_diagnose_does_not_claim_what_the_drives_training_misfit_left(
     in_round = [n for n in d.notes if "backcheck_law alone from there" in n
                 and "do as well without it on the held-out data" in n
                 and "the gain is theirs" in n]
-    assert swapped or in_round, text
+    none_after = "no further library candidate removes a significant share" in text
+    assert swapped or in_round or none_after, text
