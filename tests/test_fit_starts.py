@@ -85,7 +85,7 @@ def test_a_damping_from_zero_is_fitted_and_scanned_over_decades() -> None:
     assert z.from_u(z.to_u(3.0)) == pytest.approx(3.0)
     g = ft.target(base, "backcheck_law.damping=0.5:40", [law()])
     assert g.shift == 0.0 and g.log and g.to_u(2.446) == 0.0
-    # parameters without the flag, and model parameters, are unchanged
+    # a parameter without the flag keeps the plain rule
     assert ft.target(base, "backcheck_law.friction", [law()]).shift == 0.0
     assert not ft.target(base, "backcheck_law.friction", [law()]).log
     # the shank's damping ratio and the balance rail's damping keep the linear scan: on

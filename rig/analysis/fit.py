@@ -115,7 +115,7 @@ def target(model: ActionModel, spec: str, extra: Sequence[Effect] = ()) -> Targe
         lo, hi = max(lo, p.bounds[0]), min(hi, p.bounds[1])
         v0 = min(max(float(eff.values[rest]), lo), hi)
         # a scale quantity from 0: log(v + shift), the shift a share of its default
-        shift = LOG_SHIFT * p.default if p.log and lo <= 0 < p.default else 0.0
+        shift = LOG_SHIFT * p.default if p.log and lo == 0 < p.default else 0.0
         return Target(name, head, rest, v0, lo, hi, p.units, p.scan, shift)
     try:
         v0 = model.params.get(name)
