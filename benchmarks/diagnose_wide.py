@@ -574,7 +574,8 @@ def run_seed(seed: int, jobs: int | None, weights: str = "none", base: bool = Fa
             s.written_removal, s.written_p = written_vs_base(
                 ActionModel.from_yaml(out), ActionModel(), ms.load(held), d.window)
             s.written_worse = s.written_removal < 0 and s.written_p < ALPHA_WORSE
-    notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round "))
+    notes = [n for n in diag.notes if n.startswith(("valley", "refitted", "round ", "two ways",
+                                                    "the held-out test the other way"))
              or " dropped: " in n or " carries to the held-out trials: " in n
              or " not claimed: " in n]
     said = diag.timing_text()

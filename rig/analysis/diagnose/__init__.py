@@ -75,6 +75,14 @@ A candidate counts as significant only when all hold:
   each is needed at the final values, it is asked again with the others refitted
   without it.
 
+The held-out test both ways (``core.diagnose``). With several blows the usual side fits the
+strongest blow and scores the others, where an effect the strong blow shows may barely act:
+its search runs at ``USUAL_SHARE`` (0.8) of ``alpha``; when it chooses nothing, the search
+runs again with the sides swapped at the rest of the level, and its choice is taken only
+when each effect its first step added, alone in the usual side's first round, passes every
+check there but the level. The two searches' false alarms together stay within ``alpha``;
+one trial, or repeats of one blow, get one search at ``alpha``.
+
 Before scoring, each trial's prediction may shift as a whole by up to
 ``align_s`` (0.5 ms): the input's noise moves a blow by a few tenths of a ms
 from trial to trial, and no effect should get credit for that. Candidates of a
@@ -105,7 +113,7 @@ from rig.analysis.diagnose.common import (
     _pair_corr,
     _set_model,
 )
-from rig.analysis.diagnose.core import diagnose
+from rig.analysis.diagnose.core import USUAL_SHARE, _one_way, diagnose
 from rig.analysis.diagnose.notes import stability_notes
 from rig.analysis.diagnose.restarts import (
     BOX_STARTS_PER_PARAM,
@@ -149,7 +157,8 @@ from rig.analysis.diagnose.search import (
 from rig.analysis.diagnose.write import write_model
 
 __all__ = [
-    "BOX_STARTS_PER_PARAM", "INERT_WHY", "MAX_READOPT", "SAME_MINIMUM", "SIMEX_DRAWS",
+    "BOX_STARTS_PER_PARAM", "INERT_WHY", "USUAL_SHARE", "_one_way", "MAX_READOPT",
+    "SAME_MINIMUM", "SIMEX_DRAWS",
     "VALLEY_BISECTIONS", "VALLEY_CORR", "VALLEY_NOISE_DRAWS", "VALLEY_PARTNER_NFEV",
     "VALLEY_STARTS", "Candidate", "Diagnosis", "Minimum", "State", "_Line", "_add_input_noise",
     "_backward", "_box_starts", "_converge", "_evaluate", "_instance", "_instances",
