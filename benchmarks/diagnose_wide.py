@@ -6,7 +6,7 @@
 
 Seeds 0-999 and from 1400 up are for development. Seeds 1000-1399 are RESERVED: run them
 only to report a method's figures (docs/performance.md), never to tune it; the script
-prints a warning banner when any of them is run (1000-1359 have been reported on).
+prints a warning banner when any of them is run (1000-1379 have been reported on).
 
 Per seed, from ``numpy.random.default_rng([seed, 39])`` (so a seed's draws never depend on
 the other seeds or the options) and printed with it:
