@@ -80,6 +80,13 @@ def _sides(usual_first: Candidate, usual_chosen: list[Candidate],
                     _diagnosis("swapped", [], other_chosen, 20.0))
 
 
+def _two_blows(rec: Recorder, runs: dict[str, list[ms.Measurement]],
+               monkeypatch: pytest.MonkeyPatch) -> Diagnosis:
+    """``diagnose`` on the two-blow run at alpha 0.05, the sides answered by ``rec``."""
+    monkeypatch.setattr(dg, "_one_way", rec)
+    return dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+
+
 def test_one_blow_repeated_gets_one_search_at_the_whole_level(
         runs: dict[str, list[ms.Measurement]], monkeypatch: pytest.MonkeyPatch) -> None:
     rec = _sides(_candidate("key_liftoff", floor_removal=0.7, p=0.09), [], [])
@@ -94,8 +101,7 @@ def test_a_choice_on_the_usual_side_stands_alone(
     lift = _candidate("key_liftoff", floor_removal=0.7, p=1e-6, chosen=True)
     rec = _sides(lift, [lift], [_candidate("drive_dynamics", floor_removal=0.9, p=0.0,
                                            chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert rec.calls == [(pytest.approx(dg.USUAL_SHARE * 0.05), False)]
     assert diag.chosen_names == ["key_liftoff"]
 
@@ -105,8 +111,7 @@ def test_a_set_the_usual_side_withdrew_is_not_searched_again(
     lift = _candidate("key_liftoff", floor_removal=0.7, p=1e-6, chosen=True)
     rec = _sides(lift, [], [_candidate("key_liftoff", floor_removal=0.9, p=0.0, chosen=True)])
     rec.answers[False].withdrawn = [lift]  # its written model failed the held-out check
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert len(rec.calls) == 1 and diag.chosen == [] and diag.withdrawn == [lift]
 
 
@@ -116,8 +121,7 @@ def test_the_swapped_side_lends_the_level_when_the_usual_side_fails_only_the_lev
     # check but the level passes there
     rec = _sides(_candidate("key_liftoff", floor_removal=0.7, p=0.09), [],
                  [_candidate("key_liftoff", floor_removal=0.95, p=1e-9, chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert rec.calls == [(pytest.approx(0.04), False), (pytest.approx(0.01), True)]
     assert diag.chosen_names == ["key_liftoff"] and diag.split == "swapped"
     assert diag.wall_s == 50.0  # both sides' time
@@ -133,8 +137,7 @@ def test_the_swapped_side_does_not_lend_the_size(
     # the level; the usual side's empty result stands, saying what the other side chose
     rec = _sides(_candidate("backcheck_law", floor_removal=0.16, p=0.2), [],
                  [_candidate("backcheck_law", floor_removal=0.6, p=1e-5, chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert len(rec.calls) == 2
     assert diag.chosen == [] and diag.split == "usual" and diag.wall_s == 50.0
     assert diag.notes[-1] == (
@@ -154,8 +157,7 @@ def test_an_effect_that_makes_the_usual_side_worse_is_not_taken(
     drive.removal = -0.124
     rec = _sides(drive, [], [_candidate("drive_dynamics", floor_removal=0.36, p=0.00028,
                                         chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == [] and diag.split == "usual"
     assert diag.notes[-1].endswith("drive_dynamics alone makes the held-out error worse "
                                    "(-12 % removed)")
@@ -169,8 +171,7 @@ def test_each_effect_of_a_pair_must_hold_alone_on_the_usual_side(
                                         _candidate("drive_dynamics", floor_removal=0.05,
                                                    p=0.3)], [], 30.0),
                    _diagnosis("swapped", [], [pair], 20.0))
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == []
     assert "chose drive_dynamics + backcheck_law; not taken: " in diag.notes[-1]
     assert diag.notes[-1].endswith("drive_dynamics alone removes less than 20 % of the "
@@ -186,8 +187,7 @@ def test_an_effect_the_usual_side_never_fitted_is_not_taken(
         runs: dict[str, list[ms.Measurement]], monkeypatch: pytest.MonkeyPatch) -> None:
     rec = _sides(_candidate("key_liftoff", floor_removal=0.7, p=0.09), [],
                  [_candidate("string_compliance", floor_removal=0.6, p=1e-5, chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == []
     assert diag.notes[-1].endswith("string_compliance alone was not fitted there")
 
@@ -198,8 +198,7 @@ def test_an_effect_whose_fit_failed_on_the_usual_side_is_not_taken(
     failed.error = "simulation failed at t = 0.05 s"
     rec = _sides(failed, [], [_candidate("key_liftoff", floor_removal=0.9, p=0.0,
                                          chosen=True)])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == []
     assert diag.notes[-1].endswith("key_liftoff alone could not be fitted there (simulation "
                                    "failed at t = 0.05 s)")
@@ -208,8 +207,7 @@ def test_an_effect_whose_fit_failed_on_the_usual_side_is_not_taken(
 def test_nothing_either_way_says_so(
         runs: dict[str, list[ms.Measurement]], monkeypatch: pytest.MonkeyPatch) -> None:
     rec = _sides(_candidate("key_liftoff", floor_removal=0.1, p=0.5), [], [])
-    monkeypatch.setattr(dg, "_one_way", rec)
-    diag = dg.diagnose(ActionModel(), runs["two"], alpha=0.05)
+    diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == [] and diag.split == "usual"
     assert diag.notes[-1] == ("the held-out test the other way round (swapped; at 0.2 of the "
                               "level, 0.01, the usual side having 0.8 of it, 0.04) chose "
