@@ -75,8 +75,12 @@ class Recorder:
 
 
 def _sides(usual_first: Candidate, usual_chosen: list[Candidate],
-           other_chosen: list[Candidate]) -> Recorder:
-    return Recorder(_diagnosis("usual", [usual_first], usual_chosen, 30.0),
+           other_chosen: list[Candidate], another_passes: bool = True) -> Recorder:
+    """The two sides' answers; with ``another_passes`` the usual side's first round holds
+    a second candidate that passes every check but the level (so the swapped side is
+    searched whatever ``usual_first`` is)."""
+    more = [_candidate("felt_hysteresis", floor_removal=0.5, p=0.2)] if another_passes else []
+    return Recorder(_diagnosis("usual", [usual_first, *more], usual_chosen, 30.0),
                     _diagnosis("swapped", [], other_chosen, 20.0))
 
 
@@ -204,9 +208,25 @@ def test_an_effect_whose_fit_failed_on_the_usual_side_is_not_taken(
                                    "failed at t = 0.05 s)")
 
 
+def test_the_swapped_side_is_not_searched_when_nothing_could_be_taken(
+        runs: dict[str, list[ms.Measurement]], monkeypatch: pytest.MonkeyPatch) -> None:
+    # no candidate of the usual side's first round passes every check but the level: a
+    # swapped choice would be refused whatever it is, so the run is diagnosed once
+    rec = _sides(_candidate("key_liftoff", floor_removal=0.1, p=0.5), [],
+                 [_candidate("key_liftoff", floor_removal=0.9, p=0.0, chosen=True)],
+                 another_passes=False)
+    diag = _two_blows(rec, runs, monkeypatch)
+    assert rec.calls == [(pytest.approx(0.04), False)]
+    assert diag.chosen == [] and diag.split == "usual" and diag.wall_s == 30.0
+    assert diag.notes[-1] == (
+        "the held-out test the other way round was not run: no candidate alone on the usual "
+        "side (at 0.8 of the level, 0.04) passes every check but the level, so nothing it "
+        "chose could be taken")
+
+
 def test_nothing_either_way_says_so(
         runs: dict[str, list[ms.Measurement]], monkeypatch: pytest.MonkeyPatch) -> None:
-    rec = _sides(_candidate("key_liftoff", floor_removal=0.1, p=0.5), [], [])
+    rec = _sides(_candidate("key_liftoff", floor_removal=0.7, p=0.09), [], [])
     diag = _two_blows(rec, runs, monkeypatch)
     assert diag.chosen == [] and diag.split == "usual"
     assert diag.notes[-1] == ("the held-out test the other way round (swapped; at 0.2 of the "

@@ -80,7 +80,8 @@ strongest blow and scores the others, where an effect the strong blow shows may 
 its search runs at ``USUAL_SHARE`` (0.8) of ``alpha``; when it chooses nothing, the search
 runs again with the sides swapped at the rest of the level, and its choice is taken only
 when each effect its first step added, alone in the usual side's first round, passes every
-check there but the level. The two searches' false alarms together stay within ``alpha``;
+check there but the level (when no candidate there passes them, the swapped side is not
+searched). The two searches' false alarms together stay within ``alpha``;
 one trial, or repeats of one blow, get one search at ``alpha``.
 
 Before scoring, each trial's prediction may shift as a whole by up to

@@ -205,11 +205,14 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     its choice is taken only when each effect its first step added (two for a pair), alone
     in the usual side's first round, passes every check there but the level (``judge``);
     else the usual side's result stands, with a note saying what the swapped side chose
-    and why it was not taken. Choices refused so (development seeds): 1695, friction at the
-    key front (outside the library) credited to a back check that removes 16 % of the usual
-    side's error above its floor, short of the 20 %; 1628, a back check and a string beside
-    that friction, the drive and the back check chosen as a pair, the drive alone making
-    the usual side's held-out error 12 % worse."""
+    and why it was not taken. When no candidate of the usual side's first round passes
+    them, nothing the swapped side chose could be taken, and it is not searched (a note
+    says so): a run where nothing stands out is diagnosed once. Choices refused so
+    (development seeds): 1695, friction at the key front (outside the library) credited to
+    a back check that removes 16 % of the usual side's error above its floor, short of the
+    20 %; 1628, a back check and a string beside that friction, the drive and the back
+    check chosen as a pair, the drive alone making the usual side's held-out error 12 %
+    worse."""
     n_blows = len(set(ft.blows(measurements))) if measurements else 0
     kw = dict(input=input, duration=duration, channels=channels, candidates=candidates,
               extra=extra, max_nfev=max_nfev, scan=scan, min_gain=min_gain,
@@ -228,6 +231,12 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                          **kw)  # type: ignore[arg-type]
         if usual.chosen or usual.withdrawn:  # found something: no miss of its level
             return usual
+        if not any(_all_but_level(c, min_gain, min_noise_gain, z_off) == ""
+                   for c in usual.candidates):  # nothing the swapped side chose could be taken
+            return replace(usual, notes=[*usual.notes, (
+                f"the held-out test the other way round was not run: no candidate alone on "
+                f"the usual side (at {USUAL_SHARE:.1f} of the level, {USUAL_SHARE * alpha:.2g}"
+                ") passes every check but the level, so nothing it chose could be taken")])
         other = _one_way(base, measurements, alpha=(1 - USUAL_SHARE) * alpha, executor=ex,
                          swapped=True, **kw)  # type: ignore[arg-type]
     finally:
