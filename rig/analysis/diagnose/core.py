@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -214,21 +214,19 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     check chosen as a pair, the drive alone making the usual side's held-out error 12 %
     worse."""
     n_blows = len(set(ft.blows(measurements))) if measurements else 0
-    kw = dict(input=input, duration=duration, channels=channels, candidates=candidates,
-              extra=extra, max_nfev=max_nfev, scan=scan, min_gain=min_gain,
-              min_noise_gain=min_noise_gain, label=label, align_s=align_s, single=single,
-              max_effects=max_effects, z_off=z_off, backward=backward,
-              held_out_test=held_out_test, final_nfev=final_nfev, weights=weights,
-              progress=progress, base_params=base_params)
+    kw: dict[str, Any] = dict(
+        input=input, duration=duration, channels=channels, candidates=candidates, extra=extra,
+        max_nfev=max_nfev, scan=scan, min_gain=min_gain, min_noise_gain=min_noise_gain,
+        label=label, align_s=align_s, single=single, max_effects=max_effects, z_off=z_off,
+        backward=backward, held_out_test=held_out_test, final_nfev=final_nfev,
+        weights=weights, progress=progress, base_params=base_params)
     if n_blows < 2:
-        return _one_way(base, measurements, alpha=alpha, jobs=jobs, executor=executor,
-                        **kw)  # type: ignore[arg-type]
+        return _one_way(base, measurements, alpha=alpha, jobs=jobs, executor=executor, **kw)
     from rig.analysis.executor import LocalExecutor
 
     ex = executor if executor is not None else LocalExecutor(jobs)
     try:
-        usual = _one_way(base, measurements, alpha=USUAL_SHARE * alpha, executor=ex,
-                         **kw)  # type: ignore[arg-type]
+        usual = _one_way(base, measurements, alpha=USUAL_SHARE * alpha, executor=ex, **kw)
         if usual.chosen or usual.withdrawn:  # found something: no miss of its level
             return usual
         if not any(_all_but_level(c, min_gain, min_noise_gain, z_off) == ""
@@ -238,7 +236,7 @@ def diagnose(base: ActionModel, measurements: Sequence[Measurement], *, input: s
                 f"the usual side (at {USUAL_SHARE:.1f} of the level, {USUAL_SHARE * alpha:.2g}"
                 ") passes every check but the level, so nothing it chose could be taken")])
         other = _one_way(base, measurements, alpha=(1 - USUAL_SHARE) * alpha, executor=ex,
-                         swapped=True, **kw)  # type: ignore[arg-type]
+                         swapped=True, **kw)
     finally:
         if executor is None:
             ex.close()
@@ -257,8 +255,8 @@ def _two_ways(usual: Diagnosis, other: Diagnosis, alpha: float, min_gain: float,
                 f"having {USUAL_SHARE:.1f} of it, {lv_usual:.2g}) chose nothing either")
         return replace(usual, wall_s=wall, notes=[*usual.notes, note])
     step = other.chosen[0]  # a pair's step adds two effects: each must hold alone
-    checked = [(name, _all_but_level(next((c for c in usual.candidates if c.name == name),
-                                          None), min_gain, min_noise_gain, z_off))
+    there = {c.name: c for c in usual.candidates}
+    checked = [(name, _all_but_level(there.get(name), min_gain, min_noise_gain, z_off))
                for name in (step.name, *([step.partner] if step.partner else []))]
     said = " + ".join(other.chosen_names)
     refused = next(((name, why) for name, why in checked if why), None)
@@ -269,9 +267,8 @@ def _two_ways(usual: Diagnosis, other: Diagnosis, alpha: float, min_gain: float,
                 f"{lv_usual:.2g}) {refused[0]} alone {refused[1]}")
         return replace(usual, wall_s=wall, notes=[*usual.notes, note])
     held = "; ".join(f"{name} alone there passes every check but the level (removes "
-                     f"{c.removal * 100:.0f} % of its held-out error, p = {c.p_value:.2g})"
-                     for name in (n for n, _ in checked)
-                     for c in usual.candidates if c.name == name)
+                     f"{there[name].removal * 100:.0f} % of its held-out error, p = "
+                     f"{there[name].p_value:.2g})" for name, _ in checked)
     note = (f"two ways: the usual side ({usual.split}; at {USUAL_SHARE:.1f} of the level, "
             f"{lv_usual:.2g}) chose nothing; {held}; the result below is the swapped side's, "
             f"judged at {1 - USUAL_SHARE:.1f} of the level ({lv_other:.2g})")
@@ -336,12 +333,11 @@ def _one_way(base: ActionModel, measurements: Sequence[Measurement], *, input: s
     if swapped:
         train_m, test_m, held, fitted = test_m, train_m, fitted, held
     train, test = data.subset(train_m), data.subset(test_m)
-    k_blows = len(set(ft.blows(measurements)))
     split = ("one trial: fit on even 2 ms blocks, score on odd ones" if n_meas < 2 else
              f"{n_meas} trials: fit on even, score on odd"
              if held == list(range(1, n_meas, 2)) and not swapped else
-             f"{n_meas} trials of {k_blows} blows: fit on trials {fitted}, score on trials "
-             f"{held} (other blows"
+             f"{n_meas} trials of {len(set(ft.blows(measurements)))} blows: fit on trials "
+             f"{fitted}, score on trials {held} (other blows"
              + ("; the sides swapped: the strongest blow scored" if swapped else "") + ")")
     comp = cp.compare(measurements[0], [(label, base)], input, data.window(0), channels)
     sigs = sg.signatures(comp, comp.models[0], align_s)
