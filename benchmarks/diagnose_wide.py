@@ -4,9 +4,10 @@
     .venv/bin/python benchmarks/diagnose_wide.py --first-seed 5 --seeds 1 --json out.json
     .venv/bin/python benchmarks/diagnose_wide.py --first-seed 5 --seeds 1 --base --jobs 1
 
-Seeds 0-999 and from 1400 up are for development. Seeds 1000-1399 are RESERVED: run them
-only to report a method's figures (docs/performance.md), never to tune it; the script
-prints a warning banner when any of them is run (1000-1379 have been reported on).
+Seeds 0-999, 1400-4999 and from 5200 up are for development. Seeds 1000-1399 and 5000-5199
+are RESERVED: run them only to report a method's figures (docs/performance.md), never to
+tune it; the script prints a warning banner when any of them is run (1000-1399 have been
+reported on; 5000-5199 are fresh).
 
 Per seed, from ``numpy.random.default_rng([seed, 39])`` (so a seed's draws never depend on
 the other seeds or the options) and printed with it:
@@ -96,8 +97,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT / "tests") not in sys.path:
     sys.path.insert(0, str(ROOT / "tests"))
 
-RESERVED = range(1000, 1400)  # 1100-1199 added in session 33, 1200-1399 in session 37
-#                               (1000-1199 all reported on by then), each before any use
+# 1100-1199 added in session 33, 1200-1399 in session 37, 5000-5199 in session 45 (each
+# before any use; 1000-1399 all reported on by then)
+RESERVED_BLOCKS = (range(1000, 1400), range(5000, 5200))
 BLOW_KINDS = ("staccato", "held", "repeated", "piano")
 N_HIDDEN_P = (0.25, 0.35, 0.25, 0.15)   # 0, 1, 2, 3 hidden library effects
 P_BASE_OFF = 0.75
@@ -699,10 +701,11 @@ def table(summary: Mapping[str, Any]) -> list[str]:
 
 def reserved_banner(seeds: Sequence[int]) -> str:
     """The warning printed when the seeds include reserved ones ("" when they do not)."""
-    hit = [s for s in seeds if s in RESERVED]
+    hit = [s for s in seeds if any(s in r for r in RESERVED_BLOCKS)]
     if not hit:
         return ""
-    return ("!" * 78 + f"\n!! RESERVED seeds {RESERVED.start}-{RESERVED.stop - 1} "
+    blocks = ", ".join(f"{r.start}-{r.stop - 1}" for r in RESERVED_BLOCKS)
+    return ("!" * 78 + f"\n!! RESERVED seeds {blocks} "
             f"({len(hit)} of them here): run them only to report a method's figures, never "
             "to tune it\n" + "!" * 78)
 

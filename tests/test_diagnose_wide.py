@@ -119,10 +119,13 @@ def test_base_offsets_reach_the_truth_model() -> None:
 
 def test_reserved_seeds_get_a_banner() -> None:
     assert wide.reserved_banner(range(0, 1000)) == ""
-    assert "RESERVED seeds 1000-1399" in wide.reserved_banner(range(990, 1001))
-    assert wide.reserved_banner(range(1400, 1500)) == ""
+    assert "RESERVED seeds 1000-1399, 5000-5199" in wide.reserved_banner(range(990, 1001))
+    assert "(1 of them here)" in wide.reserved_banner(range(990, 1001))
+    assert wide.reserved_banner(range(1400, 5000)) == ""
+    assert wide.reserved_banner(range(5200, 5300)) == ""
     assert "RESERVED" in wide.reserved_banner([1250])
     assert "RESERVED" in wide.reserved_banner([1150])
+    assert "(2 of them here)" in wide.reserved_banner([4999, 5000, 5199, 5200])
 
 
 @pytest.fixture(scope="module")
